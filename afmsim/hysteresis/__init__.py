@@ -8,10 +8,12 @@ Every model in :data:`MODELS` shares one contract::
 ``predict`` always starts from the eq. (4) initial operator state.
 """
 
+from .capi import CAPI
 from .diapi import DIAPI
+from .iiapi import IIAPI
 from .operators import osp, osp_reference, play, play_reference
 from .spi import SPI
 
-MODELS = {"spi": SPI, "diapi": DIAPI}
+MODELS = {"spi": SPI, "diapi": DIAPI, "iiapi": IIAPI, "capi": CAPI}
 
-__all__ = ["osp", "play", "osp_reference", "play_reference", "SPI", "DIAPI", "MODELS"]
+__all__ = ["osp", "play", "osp_reference", "play_reference", "SPI", "DIAPI", "IIAPI", "CAPI", "MODELS"]

@@ -34,6 +34,9 @@ class DIAPI:
         Displacement subtracted before the operators (min of the identification data or 0), m.
     h0 : float
         Operator state before the first sample (eq. 4), metres relative to ``offset``.
+    bias : float
+        Voltage at the shifted origin, V; fitted only when ``offset != 0`` (bipolar records,
+        see :class:`~afmsim.hysteresis.spi.SPI`), else 0 as in eq. (3).
     """
 
     widths: np.ndarray
@@ -41,6 +44,7 @@ class DIAPI:
     weights_retrace: np.ndarray
     offset: float = 0.0
     h0: float = 0.0
+    bias: float = 0.0
 
     name = "diapi"
 
@@ -53,14 +57,17 @@ class DIAPI:
         H = osp(d - offset, widths, h0)
         trace = (branch_signs(d) > 0)[:, None]
         design = np.hstack([H * trace, H * ~trace])
+        if offset != 0.0:  # bipolar record: the shifted origin is not at 0 V, fit the constant too
+            design = np.hstack([design, np.ones((d.size, 1))])
         w = solve_weights(design, v, positive_columns=[0, n_operators])
-        return cls(widths, w[:n_operators], w[n_operators:], offset, h0)
+        bias = float(w[2 * n_operators]) if offset != 0.0 else 0.0
+        return cls(widths, w[:n_operators], w[n_operators:2 * n_operators], offset, h0, bias)
 
     def predict(self, displacement) -> np.ndarray:
         """Feedforward voltage (V) for a displacement trajectory (m), from the eq. (4) state."""
         d = np.asarray(displacement, dtype=np.float64)
         H = osp(d - self.offset, self.widths, self.h0)
-        return np.where(branch_signs(d) > 0, H @ self.weights_trace, H @ self.weights_retrace)
+        return np.where(branch_signs(d) > 0, H @ self.weights_trace, H @ self.weights_retrace) + self.bias
 
     @property
     def asymmetry(self) -> np.ndarray:
@@ -71,4 +78,4 @@ class DIAPI:
         """JSON-ready parameters (SI units)."""
         return {"widths_m": self.widths.tolist(), "weights_trace_V_per_m": self.weights_trace.tolist(),
                 "weights_retrace_V_per_m": self.weights_retrace.tolist(), "e_omega": self.asymmetry.tolist(),
-                "offset_m": self.offset, "h0_m": self.h0}
+                "offset_m": self.offset, "h0_m": self.h0, "bias_V": self.bias}

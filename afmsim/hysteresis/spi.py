@@ -31,12 +31,18 @@ class SPI:
         data, so bipolar records work with the same operator bank (0 for the paper's data).
     h0 : float
         Operator state before the first sample (eq. 4), metres, relative to ``offset``.
+    bias : float
+        Voltage at the shifted origin, V. Fitted only when ``offset != 0`` (bipolar records): the
+        paper's eq. (1) has no constant because its input starts at the de-energised point
+        (0 m, 0 V); once the displacement is shifted by ``offset`` that anchor is gone, and without
+        a fitted constant the model is forced through 0 V at ``min(d)``. 0 for the paper's data.
     """
 
     widths: np.ndarray
     weights: np.ndarray
     offset: float = 0.0
     h0: float = 0.0
+    bias: float = 0.0
 
     name = "spi"
 
@@ -46,14 +52,17 @@ class SPI:
         d, v = check_fit_inputs(displacement, voltage, n_operators)
         offset = float(min(d.min(), 0.0))
         widths = operator_widths(np.ptp(d), n_operators, spacing)
-        weights = solve_weights(osp(d - offset, widths, h0), v, positive_columns=[0])
-        return cls(widths, weights, offset, h0)
+        design = osp(d - offset, widths, h0)
+        if offset != 0.0:  # bipolar record: the shifted origin is not at 0 V, fit the constant too
+            design = np.hstack([design, np.ones((d.size, 1))])
+        w = solve_weights(design, v, positive_columns=[0])
+        return cls(widths, w[:n_operators], offset, h0, float(w[n_operators]) if offset != 0.0 else 0.0)
 
     def predict(self, displacement) -> np.ndarray:
         """Feedforward voltage (V) for a displacement trajectory (m), from the eq. (4) state."""
-        return osp(np.asarray(displacement, dtype=np.float64) - self.offset, self.widths, self.h0) @ self.weights
+        return osp(np.asarray(displacement, dtype=np.float64) - self.offset, self.widths, self.h0) @ self.weights + self.bias
 
     def params(self) -> dict:
         """JSON-ready parameters (SI units)."""
         return {"widths_m": self.widths.tolist(), "weights_V_per_m": self.weights.tolist(),
-                "offset_m": self.offset, "h0_m": self.h0}
+                "offset_m": self.offset, "h0_m": self.h0, "bias_V": self.bias}
