@@ -219,7 +219,11 @@ def test_creep_sos_equals_parallel_bank():
     g0, c, tau = creep_bank(0.018)
     dt = 0.01
     t = np.arange(20000) * dt
-    bank = g0 + np.sum(c[:, None] * (1 - np.exp(-t[None, :] / tau[:, None])), axis=0)
+    # The first-order hold reads the sampled step [0, 1, 1, ...] as a ramp over [-dt, 0]; the exact
+    # continuous response to that ramp is the step response averaged over a shift u in [0, dt].
+    u = (np.arange(64) + 0.5) / 64 * dt
+    shifted = t[None, :, None] + u[None, None, :]
+    bank = g0 + np.sum(c[:, None] * (1 - np.exp(-shifted / tau[:, None, None])).mean(axis=2), axis=0)
     step = sosfilt(creep_sos(0.018, dt), np.ones_like(t))
     assert np.max(np.abs(step[10:] - bank[10:])) < 1e-3 * 0.018 * 3  # 0.1 % of the 3-decade creep
 

@@ -1,0 +1,147 @@
+"""The ``afmsim`` command line: a thin layer over the public Python API.
+
+Every command's work is one function call away (named in its help). Bad input exits with code 2
+and a one-line message naming the field; nothing is written then.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="afmsim — a virtual atomic-force microscope with hysteretic piezo stages.")
+
+
+@app.callback()
+def _root() -> None:
+    """afmsim — a virtual atomic-force microscope with hysteretic piezo stages."""
+
+
+def _fail(message: str) -> None:
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(code=2)
+
+
+@app.command()
+def identify(
+    out: Optional[Path] = typer.Option(None, help="Run folder to create (default: outputs/identify-default-<time>)."),
+    seed: int = typer.Option(0, min=0, help="Seed of the numpy Generator for all noise draws."),
+    experiments: int = typer.Option(10, min=1, max=1000, help="Repeated evaluation experiments (fresh noise)."),
+    n_operators: int = typer.Option(10, min=1, max=50, help="Backlash operators N per model."),
+    hysteresis: str = typer.Option("preisach", help="Plant hysteresis family: preisach or bouc_wen."),
+):
+    """Identify SPI, DIAPI, IIAPI and the better model on the default stage (paper §3.2, Tables 1–2).
+
+    Python: afmsim.identification.identify(...) and write_identification(...).
+    """
+    from afmsim.identification import identify as run_identify, table1, table2, write_identification
+    from afmsim.runio import default_run_dir, run_folder
+    from afmsim.stage import HYSTERESIS_MODELS, default_stage
+
+    if hysteresis not in HYSTERESIS_MODELS:
+        _fail(f"--hysteresis must be one of {sorted(HYSTERESIS_MODELS)}, got {hysteresis!r}")
+    out = out or default_run_dir("identify", hysteresis)
+    config = {"seed": seed, "experiments": experiments, "n_operators": n_operators, "hysteresis": hysteresis}
+    try:
+        with run_folder(out, config=config, seed=seed, command="identify") as folder:
+            result = run_identify(default_stage(hysteresis), seed=seed, experiments=experiments, n_operators=n_operators)
+            write_identification(result, folder)
+    except FileExistsError as error:
+        _fail(str(error))
+    typer.echo(table1(result))
+    typer.echo("")
+    typer.echo(table2(result))
+    typer.echo(f"\nwrote {out}")
+
+
+def _load(scenario_path: Path):
+    from afmsim.scenario import ScenarioError, load_scenario
+
+    try:
+        return load_scenario(scenario_path)
+    except ScenarioError as error:
+        _fail(str(error))
+
+
+@app.command()
+def validate(scenario: Path = typer.Argument(..., help="Scenario YAML file.")):
+    """Check a scenario without running it. Python: afmsim.scenario.load_scenario(path)."""
+    loaded = _load(scenario)
+    typer.echo(f"{scenario}: valid ({loaded.experiments} experiments, controllers: {', '.join(loaded.controllers)})")
+
+
+@app.command()
+def run(
+    scenario: Path = typer.Argument(..., help="Scenario YAML file."),
+    out: Optional[Path] = typer.Option(None, help="Run folder to create (default: outputs/run-<name>-<time>)."),
+    experiments: Optional[int] = typer.Option(None, min=1, max=1000, help="Override the scenario's experiment count."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+):
+    """Run a scenario: scans per controller, images, metrics (paper Tables 3–4).
+
+    Python: afmsim.experiment.run_scenario(load_scenario(path)) and afmsim.report.write_run(...).
+    """
+    import sys
+
+    from afmsim.experiment import run_scenario
+    from afmsim.report.run_output import write_run
+    from afmsim.runio import default_run_dir, run_folder
+    from afmsim.scenario import ScenarioError, parse_scenario
+
+    loaded = _load(scenario)
+    if experiments is not None:
+        try:
+            loaded = parse_scenario({**loaded.model_dump(mode="json"), "experiments": experiments})
+        except ScenarioError as error:
+            _fail(str(error))
+    out = out or default_run_dir("run", loaded.name)
+    if out.exists():
+        _fail(f"output folder {out} already exists: choose another --out or remove it")
+    show = not quiet and sys.stderr.isatty()
+    with _progress(show) as progress:
+        try:
+            with run_folder(out, config=loaded.model_dump(mode="json"), seed=loaded.seed, command="run") as folder:
+                result = run_scenario(loaded, progress=progress)
+                write_run(result, folder)
+        except ValueError as error:
+            _fail(str(error).splitlines()[0])
+    _print_summary(result.metrics())
+    typer.echo(f"wrote {out}")
+
+
+def _progress(show: bool):
+    """A context manager yielding ``progress(step, total, label)``: a rich bar on a terminal, else silent."""
+    from contextlib import contextmanager, nullcontext
+
+    if not show:
+        return nullcontext(None)
+
+    @contextmanager
+    def bar():
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                      TimeElapsedColumn(), transient=True) as prog:
+            task = prog.add_task("scanning", total=None)
+            yield lambda step, total, label: prog.update(task, completed=step, total=total, description=label)
+    return bar()
+
+
+def _print_summary(metrics: dict) -> None:
+    typer.echo(f"{'controller':>10} {'NSL2 mean':>12} {'σ':>10} {'shift x (µm)':>13}")
+    for name, scores in metrics["controllers"].items():
+        typer.echo(f"{name:>10} {scores['nsl2']['mean']:>12.1f} {scores['nsl2']['std']:>10.1f} "
+                   f"{scores['shift_x_m']['mean'] * 1e6:>13.3f}")
+    if "e_D" in metrics:
+        typer.echo(f"e_D (SPI → DIAPI, eq. 9): {metrics['e_D']:.1%}")
+
+
+def main() -> None:  # pragma: no cover - console entry point
+    app(prog_name="afmsim")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()
