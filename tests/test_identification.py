@@ -1,0 +1,37 @@
+"""The identification experiment on the default stage (paper §3.2, Table 2)."""
+
+import numpy as np
+import pytest
+
+from afmsim.identification import identify, table1, table2
+
+
+@pytest.fixture(scope="module")
+def result():
+    return identify(seed=3, experiments=10)
+
+
+def test_diapi_beats_spi_in_every_experiment_with_the_papers_ratio(result):
+    spi, diapi = np.array(result.errors["spi"]["rms_V"]), np.array(result.errors["diapi"]["rms_V"])
+    assert np.all(diapi < spi)
+    assert 0.15 <= diapi.mean() / spi.mean() <= 0.45          # paper: 0.021 / 0.080 = 0.26
+    assert 0.03 < spi.mean() < 0.3                             # paper: 0.080 V
+
+
+def test_every_model_is_scored_on_fresh_noise(result):
+    for name, errors in result.errors.items():
+        assert len(set(errors["rms_V"])) == 10, name          # different noise draws, different errors
+        assert all(m >= r for m, r in zip(errors["max_V"], errors["rms_V"]))
+
+
+def test_tables_show_the_fitted_parameters_and_paper_values(result):
+    t1 = table1(result)
+    assert t1.count("\n") == 11 and "ω_af" in t1
+    t2 = table2(result)
+    assert "paper" in t2 and "0.080" in t2 and "DIAPI/SPI mean RMS ratio" in t2
+
+
+def test_same_seed_same_result():
+    a = identify(seed=5, experiments=2)
+    b = identify(seed=5, experiments=2)
+    assert a.errors == b.errors
