@@ -12,28 +12,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import afmsim  # noqa: E402
+from _timing import machine_info, median_seconds  # noqa: E402
 from afmsim.hysteresis import osp, osp_reference  # noqa: E402
-
-
-def median_seconds(func, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        func()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -50,8 +37,8 @@ def main() -> None:
     updates = args.samples * args.operators
 
     osp(d[:10], widths)  # compile / load from the on-disk cache outside the timing
-    compiled_s = median_seconds(lambda: osp(d, widths), args.repeats)
-    naive_s = median_seconds(lambda: osp_reference(d, widths), args.repeats)
+    compiled_s, _ = median_seconds(lambda: osp(d, widths), args.repeats)
+    naive_s, _ = median_seconds(lambda: osp_reference(d, widths), args.repeats)
     max_diff = float(np.max(np.abs(osp(d, widths) - osp_reference(d, widths))))
     if max_diff > 1e-12:
         raise SystemExit(f"compiled and reference kernels disagree by {max_diff}")
@@ -63,10 +50,7 @@ def main() -> None:
         "naive_numpy_updates_per_s": updates / naive_s,
         "speedup": naive_s / compiled_s,
         "max_abs_difference_m": max_diff,
-        "machine": {"platform": platform.platform(), "processor": platform.machine(),
-                    "python": platform.python_version(), "cpu_count": os.cpu_count(),
-                    "numpy": np.__version__, "afmsim": afmsim.__version__},
-        "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "machine": machine_info(),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=2) + "\n")

@@ -9,27 +9,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _timing import machine_info, median_seconds  # noqa: E402
 from afmsim.samples import MicroLensArray, grating_heightmap  # noqa: E402
 from afmsim.tip import dilate, mlct_tip  # noqa: E402
-
-
-def median_seconds(func, repeats):
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        func()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -46,13 +35,12 @@ def main() -> None:
         if not np.all(dilate(hm, tip).z >= hm.z):
             raise SystemExit("dilation went below the sample")
     results = {
-        "microlens_mesh_s": median_seconds(lens.mesh, args.repeats),
-        "raycast_256_s": median_seconds(lambda: lens.heightmap((256, 256), mesh=mesh), args.repeats),
-        "raycast_512_s": median_seconds(lambda: lens.heightmap((512, 512), mesh=mesh), args.repeats),
-        "dilation_lens_256_s": median_seconds(lambda: dilate(lens_map, tip), args.repeats),
-        "dilation_grating_256_s": median_seconds(lambda: dilate(grating, tip), args.repeats),
-        "machine": {"platform": platform.platform(), "python": platform.python_version()},
-        "date": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "microlens_mesh_s": median_seconds(lens.mesh, args.repeats)[0],
+        "raycast_256_s": median_seconds(lambda: lens.heightmap((256, 256), mesh=mesh), args.repeats)[0],
+        "raycast_512_s": median_seconds(lambda: lens.heightmap((512, 512), mesh=mesh), args.repeats)[0],
+        "dilation_lens_256_s": median_seconds(lambda: dilate(lens_map, tip), args.repeats)[0],
+        "dilation_grating_256_s": median_seconds(lambda: dilate(grating, tip), args.repeats)[0],
+        "machine": machine_info(),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=2) + "\n")
