@@ -112,6 +112,34 @@ def run(
     typer.echo(f"wrote {out}")
 
 
+@app.command()
+def render(
+    run_dir: Path = typer.Argument(..., help="A run folder written by 'afmsim run'."),
+    interactive: bool = typer.Option(False, "--interactive", help="Open each view in a window (needs a display)."),
+):
+    """Re-render the 3D views (render_*.png) of a written run from its images.npz and scenario.yaml.
+
+    Python: afmsim.report.renders.load_run_arrays(run_dir) and render_run_views(...).
+    """
+    from afmsim.report.renders import load_run_arrays, rebuild_mesh, render_run_views
+    from afmsim.scenario import ScenarioError
+
+    try:
+        scenario, images, truth = load_run_arrays(run_dir)
+    except (OSError, ValueError, ScenarioError) as error:
+        _fail(str(error).splitlines()[0])
+    from afmsim.render import RenderingUnavailable
+
+    try:
+        written, warning = render_run_views(images, truth, rebuild_mesh(scenario), run_dir, name=scenario.name,
+                                            interactive=interactive)
+    except RenderingUnavailable as error:
+        _fail(str(error).splitlines()[0])
+    if warning:
+        _fail(warning)
+    typer.echo(f"wrote {len(written)} renders into {run_dir}")
+
+
 def _progress(show: bool):
     """A context manager yielding ``progress(step, total, label)``: a rich bar on a terminal, else silent."""
     from contextlib import contextmanager, nullcontext

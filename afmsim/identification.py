@@ -115,8 +115,14 @@ def summary_dict(result: IdentificationResult) -> dict:
 
 def write_identification(result: IdentificationResult, folder) -> None:
     """Write ``identify.json``, ``tables.txt`` and ``loops.csv`` (first evaluation record with
-    every model's predicted voltage) into ``folder``."""
+    every model's predicted voltage) into ``folder``, plus the paper analogues:
+    ``fig6_loops.png`` (measured vs SPI / DIAPI / CAPI loops), ``fig7_errors.png`` (trace and
+    retrace voltage errors vs displacement), ``table2.md``/``table2.csv`` (with the paper's
+    column) and ``table1.csv`` (DIAPI parameters, when DIAPI was fitted)."""
+    from afmsim.report.identification_report import write_identification_report
+
     folder = Path(folder)
+    write_identification_report(result, folder)
     write_json(folder / "identify.json", summary_dict(result))
     (folder / "tables.txt").write_text(table1(result) + "\n\n" + table2(result) + "\n")
     record = result.evaluations[0]

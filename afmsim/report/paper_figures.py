@@ -1,0 +1,282 @@
+"""Matplotlib analogues of the paper's figures.
+
+* :func:`plot_scan_figure` — Fig. 10–13: (a) trace, (b) retrace, (c) the cross-section through the
+  central micro-lens (trace vs retrace, with a magnified inset where they differ most) or, for a
+  grating, the row-averaged profile across the lines.
+* :func:`plot_binarized` — the binarized trace/retrace images that NSL2 (eq. 8) compares.
+* :func:`plot_identification_loops` / :func:`plot_identification_errors` — Fig. 6 / Fig. 7:
+  measured loop vs model loops, and trace/retrace voltage errors vs displacement.
+* :func:`plot_time_saving` — Fig. 8: DIAPI vs IIAPI identification time saving over M and N.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from afmsim.metrics import lens_centres  # noqa: E402
+from afmsim.metrics.nsl2 import binarize, nsl2  # noqa: E402
+from afmsim.samples.heightmap import HeightMap  # noqa: E402
+
+from .figures import height_extent_um  # noqa: E402
+
+__all__ = ["plot_scan_figure", "plot_binarized", "plot_identification_loops", "plot_identification_errors",
+           "plot_time_saving", "central_lens"]
+
+UM, NM = 1e-6, 1e-9
+_DPI = 110
+
+
+def central_lens(image: HeightMap):
+    """(x, y) in metres of the lens nearest the image centre, or None when none is found."""
+    try:
+        centres = lens_centres(image.z, image.pixel_size, origin=image.origin)
+    except ValueError:
+        return None
+    if len(centres) == 0:
+        return None
+    middle = np.array([image.x.mean(), image.y.mean()])
+    return centres[np.argmin(np.linalg.norm(centres - middle, axis=1))]
+
+
+def _cross(ax, xy, style):
+    if xy is not None:
+        ax.plot(xy[0] / UM, xy[1] / UM, marker="+", markersize=16, markeredgewidth=1.6, color="white",
+                linestyle="none", **style)
+
+
+def plot_scan_figure(trace: HeightMap, retrace: HeightMap, path, *, kind: str, title: str) -> Path:
+    """Fig. 10–13 analogue for one controller: trace, retrace and a cross-section panel.
+
+    Micro-lenses (and other samples): the scan line through the central lens of the trace image
+    (white cross; its trace position is shown dashed on the retrace, as in Fig. 10), trace vs
+    retrace heights with a 5× inset around the largest difference. Gratings: the profile averaged
+    over all lines, trace vs retrace.
+    """
+    base = min(trace.z.min(), retrace.z.min())
+    vmax = (max(trace.z.max(), retrace.z.max()) - base) / NM
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), gridspec_kw={"width_ratios": [1, 1, 1.3]})
+    fig.subplots_adjust(left=0.04, right=0.98, bottom=0.11, top=0.86, wspace=0.45)
+    centre_t = central_lens(trace) if kind != "grating" else None
+    centre_r = central_lens(retrace) if kind != "grating" else None
+    for ax, image, label in zip(axes[:2], (trace, retrace), ("(a) trace", "(b) retrace")):
+        shown = ax.imshow((image.z - base) / NM, origin="lower", extent=height_extent_um(image), cmap="afmhot",
+                          vmin=0.0, vmax=vmax, interpolation="nearest")
+        ax.set_title(label)
+        ax.set_xlabel("x (µm)")
+        ax.set_ylabel("y (µm)")
+    fig.colorbar(shown, ax=axes[1], label="height (nm)", fraction=0.046, pad=0.03)
+    _cross(axes[0], centre_t, {})
+    if centre_t is not None:
+        axes[1].plot(centre_t[0] / UM, centre_t[1] / UM, marker="+", markersize=16, markeredgewidth=1.2,
+                     color="white", alpha=0.6, linestyle="none")
+        axes[1].axvline(centre_t[0] / UM, color="white", linestyle="--", linewidth=0.8, alpha=0.7)
+    _cross(axes[1], centre_r, {})
+
+    x_um = trace.x / UM
+    ax = axes[2]
+    if kind == "grating":
+        t_prof, r_prof = trace.z.mean(axis=0), retrace.z.mean(axis=0)
+        ax.set_title("(c) profile averaged over all lines")
+    else:
+        y0 = centre_t[1] if centre_t is not None else trace.y.mean()
+        row = int(np.clip(np.rint((y0 - trace.origin[1]) / trace.pixel_size[1]), 0, trace.shape[0] - 1))
+        t_prof, r_prof = trace.z[row], retrace.z[row]
+        what = "central lens" if centre_t is not None else "image centre"
+        ax.set_title(f"(c) cross-section through the {what} (y = {trace.y[row] / UM:.2f} µm)")
+        for a in axes[:2]:
+            a.axhline(trace.y[row] / UM, color="cyan", linewidth=0.8, alpha=0.8)
+    ax.plot(x_um, t_prof / NM, "-", color="tab:blue", label="trace (T)")
+    ax.plot(x_um, r_prof / NM, "--", color="tab:red", label="retrace (R)")
+    if centre_t is not None:
+        ax.axvline(centre_t[0] / UM, color="tab:blue", linewidth=0.7, alpha=0.5)
+    if centre_r is not None:
+        ax.axvline(centre_r[0] / UM, color="tab:red", linewidth=0.7, alpha=0.5, linestyle="--")
+    ax.set_xlabel("x (µm)")
+    ax.set_ylabel("height (nm)")
+    ax.grid(alpha=0.3)
+    if kind != "grating" and len(x_um) >= 8:
+        # 5×-style inset around the largest trace/retrace difference (paper Figs. 11–13).
+        k = int(np.argmax(np.abs(t_prof - r_prof)))
+        half = max(2, len(x_um) // 20)
+        lo, hi = max(0, k - half), min(len(x_um) - 1, k + half)
+        box = _free_corner(x_um, np.concatenate([t_prof, r_prof]) / NM)
+        inset = ax.inset_axes(box)
+        inset.plot(x_um[lo:hi + 1], t_prof[lo:hi + 1] / NM, "-", color="tab:blue")
+        inset.plot(x_um[lo:hi + 1], r_prof[lo:hi + 1] / NM, "--", color="tab:red")
+        inset.tick_params(labelsize=7)
+        inset.set_title(f"zoom {x_um[lo]:.1f}–{x_um[hi]:.1f} µm", fontsize=7)
+        ax.indicate_inset_zoom(inset, edgecolor="0.4")
+        ax.legend(loc="upper right" if box[0] < 0.3 and box[1] > 0.5 else "upper left", fontsize=8)
+    else:
+        ax.legend(loc="best", fontsize=8)
+    fig.suptitle(title)
+    path = Path(path)
+    fig.savefig(path, dpi=_DPI)
+    plt.close(fig)
+    return path
+
+
+def _free_corner(x, y) -> list[float]:
+    """Inset box (axes fraction) among four corners and the bottom centre that covers the fewest
+    curve points (x repeated for each curve in ``y``)."""
+    xs = np.tile(x, len(y) // len(x))
+    fx = (xs - xs.min()) / max(np.ptp(xs), 1e-300)
+    fy = (y - y.min()) / max(np.ptp(y), 1e-300)
+    fx, fy = 0.03 + 0.94 * fx, 0.05 + 0.9 * fy  # matplotlib's default data margins, roughly
+    boxes = [[0.64, 0.56, 0.34, 0.4], [0.02, 0.56, 0.34, 0.4], [0.64, 0.04, 0.34, 0.4],
+             [0.02, 0.04, 0.34, 0.4], [0.33, 0.04, 0.34, 0.4]]
+    hits = [np.count_nonzero((fx > b[0] - 0.03) & (fx < b[0] + b[2] + 0.03) & (fy > b[1] - 0.05)
+                             & (fy < b[1] + b[3] + 0.05)) for b in boxes]
+    return boxes[int(np.argmin(hits))]
+
+
+def plot_binarized(images: dict, path, *, title: str) -> Path:
+    """Binarized trace, retrace (threshold = each image's mean, eq. 8) and their disagreement,
+    one row per controller; NSL2 in the row label. ``images``: controller → (trace, retrace)."""
+    n = len(images)
+    fig, axes = plt.subplots(n, 3, figsize=(10, 3.1 * n + 0.6), squeeze=False)
+    fig.subplots_adjust(left=0.1, right=0.98, bottom=0.5 / (3.1 * n + 0.6), top=1 - 0.7 / (3.1 * n + 0.6),
+                        wspace=0.25, hspace=0.45)
+    for row, (name, (trace, retrace)) in zip(axes, images.items()):
+        bt, br = binarize(trace.z), binarize(retrace.z)
+        try:
+            d = f"NSL2 = {nsl2(bt, br):,.0f}"
+        except ValueError:
+            d = "NSL2 undefined"
+        for ax, img, label, cmap in zip(row, (bt, br, np.abs(bt - br)),
+                                        ("trace (binarized)", "retrace (binarized)", "differs"),
+                                        ("gray", "gray", "Reds")):
+            ax.imshow(img, origin="lower", extent=height_extent_um(trace), cmap=cmap, vmin=0, vmax=1,
+                      interpolation="nearest")
+            ax.set_title(f"{name}: {label}", fontsize=9)
+            ax.set_xlabel("x (µm)", fontsize=8)
+            ax.tick_params(labelsize=7)
+        row[0].set_ylabel(f"{d}\ny (µm)", fontsize=9)
+    fig.suptitle(title)
+    path = Path(path)
+    fig.savefig(path, dpi=_DPI)
+    plt.close(fig)
+    return path
+
+
+# --------------------------------------------------------------------------- identification
+
+_MODEL_STYLE = {"spi": ("tab:orange", "SPI"), "diapi": ("tab:green", "DIAPI"), "capi": ("tab:purple", "CAPI"),
+                "iiapi": ("tab:brown", "IIAPI")}
+LOOP_MODELS = ("spi", "diapi", "capi")
+
+
+def _branches(record, cycle: int = 0):
+    """Index arrays of the trace (rising voltage) and retrace (falling) branches of one cycle."""
+    n = record.samples_per_cycle
+    sl = np.arange(cycle * n, min((cycle + 1) * n + 1, record.t.size))
+    dv = np.gradient(record.voltage)[sl]
+    return sl[dv > 0], sl[dv <= 0]
+
+
+def plot_identification_loops(result, path) -> Path:
+    """Fig. 6 analogue: measured hysteresis loop and the SPI / DIAPI / CAPI model loops
+    (drive voltage vs displacement, µm) on the first evaluation record, first cycle."""
+    record = result.evaluations[0]
+    n = record.samples_per_cycle
+    sl = slice(0, n + 1)
+    d_um = record.displacement[sl] / UM
+    fig, ax = plt.subplots(figsize=(7, 5.2))
+    fig.subplots_adjust(left=0.11, right=0.97, bottom=0.11, top=0.92)
+    ax.plot(d_um, record.voltage[sl], "-", color="black", linewidth=2.2, label="actual (measured)")
+    for name in LOOP_MODELS:
+        if name in result.models:
+            colour, label = _MODEL_STYLE[name]
+            v = result.models[name].predict(record.displacement)[sl]
+            ax.plot(d_um, v, "--", color=colour, linewidth=1.2, label=f"{label} model")
+    ax.set_xlabel("displacement (µm)")
+    ax.set_ylabel("voltage (V)")
+    ax.set_title("Fig. 6 analogue: actual hysteresis loop and inverse PI model loops")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    path = Path(path)
+    fig.savefig(path, dpi=_DPI)
+    plt.close(fig)
+    return path
+
+
+def plot_identification_errors(result, path, *, n_records: int = 3) -> Path:
+    """Fig. 7 analogue: (a) trace and (b) retrace voltage errors (model − applied) vs displacement
+    of SPI / DIAPI / CAPI on up to ``n_records`` evaluation records (first cycle each)."""
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.8), sharey=True)
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.12, top=0.86, wspace=0.08)
+    styles = ["-", "--", ":"]
+    for j, record in enumerate(result.evaluations[:n_records]):
+        trace_idx, retrace_idx = _branches(record)
+        for name in LOOP_MODELS:
+            if name not in result.models:
+                continue
+            colour, label = _MODEL_STYLE[name]
+            error = result.models[name].predict(record.displacement) - record.voltage
+            for ax, idx, prefix in zip(axes, (trace_idx, retrace_idx), ("T", "R")):
+                ax.plot(record.displacement[idx] / UM, error[idx], styles[j % 3], color=colour, linewidth=0.9,
+                        label=f"{prefix}-{label}" if j == 0 else None)
+    for ax, what in zip(axes, ("(a) trace (rising voltage)", "(b) retrace (falling voltage)")):
+        ax.axhline(0, color="black", linewidth=0.6)
+        ax.set_title(f"{what}, {min(n_records, len(result.evaluations))} experiments")
+        ax.set_xlabel("displacement (µm)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[0].set_ylabel("voltage error (V)")
+    fig.suptitle("Fig. 7 analogue: model voltage errors vs displacement")
+    path = Path(path)
+    fig.savefig(path, dpi=_DPI)
+    plt.close(fig)
+    return path
+
+
+# --------------------------------------------------------------------------- Fig. 8
+
+
+def plot_time_saving(json_path, png_path) -> Path:
+    """Fig. 8 analogue from ``benchmarks/results/identification_timing.json``: time saving (%)
+    of DIAPI over IIAPI identification (a) vs operator count N per sampling M and (b) vs M per N
+    (skipped (M, N) combinations are left out)."""
+    data = json.loads(Path(json_path).read_text())
+    rows = [r for r in data["rows"] if "time_saving_percent" in r]
+    if not rows:
+        raise ValueError(f"{json_path}: no timed rows")
+    ms = sorted({r["M"] for r in rows})
+    ns = sorted({r["N"] for r in rows})
+    table = {(r["M"], r["N"]): r["time_saving_percent"] for r in rows}
+    fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(12, 4.6), sharey=True)
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.12, top=0.86, wspace=0.08)
+    cmap = plt.get_cmap("viridis")
+    for i, m in enumerate(ms):
+        pts = [(n, table[m, n]) for n in ns if (m, n) in table]
+        if pts:
+            ax_a.plot(*zip(*pts), "o-", color=cmap(i / max(1, len(ms) - 1)), label=f"M = {m}")
+    for i, n in enumerate(ns):
+        pts = [(m, table[m, n]) for m in ms if (m, n) in table]
+        if pts:
+            ax_b.plot(*zip(*pts), "s-", color=cmap(i / max(1, len(ns) - 1)), label=f"N = {n}")
+    mean_by_m = [(m, float(np.mean([table[m, n] for n in ns if (m, n) in table]))) for m in ms]
+    ax_b.plot(*zip(*mean_by_m), "k--", linewidth=1.5, label="mean over N")
+    ax_b.plot([200], [25], "*", color="tab:red", markersize=14, label="paper: ≈ 25 % at M = 200")
+    ax_b.set_xscale("log")
+    ax_a.set_xlabel("operator quantity N")
+    ax_b.set_xlabel("samples per hysteresis loop M")
+    ax_a.set_ylabel("time saving of DIAPI over IIAPI (%)")
+    ax_a.set_title("(a) vs N")
+    ax_b.set_title("(b) vs M")
+    for ax in (ax_a, ax_b):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, ncol=2)
+    fig.suptitle(f"Fig. 8 analogue ({data.get('statistic', 'median')} of {data.get('repeats', '?')} runs)")
+    png_path = Path(png_path)
+    png_path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png_path, dpi=_DPI)
+    plt.close(fig)
+    return png_path

@@ -1,0 +1,141 @@
+"""Run reports: report.html/.md, NSL2 tables, .gwy export, 3D renders, ``afmsim render``, Fig. 8."""
+
+import csv
+import json
+import re
+import shutil
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from afmsim.cli import app
+from afmsim.experiment import run_scenario
+from afmsim.render import rendering_available
+from afmsim.report.gwy import read_gwy
+from afmsim.report.run_output import write_run
+from afmsim.scenario import parse_scenario
+
+CONTROLLERS = ["none", "spi", "diapi", "ideal"]
+RENDERS = [f"render_{c}_{d}.png" for c in CONTROLLERS for d in ("trace", "retrace")] + ["render_sample.png"]
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    scenario = parse_scenario({"name": "tiny", "sample": {"kind": "microlens"},
+                               "scan": {"size_um": [20, 20], "offset_um": [2, 2], "pixels": 32, "lines": 32},
+                               "experiments": 1, "controllers": CONTROLLERS})
+    result = run_scenario(scenario)
+    folder = tmp_path_factory.mktemp("run")
+    write_run(result, folder)
+    return folder
+
+
+def test_report_html_embeds_images(run_dir):
+    page = (run_dir / "report.html").read_text(encoding="utf-8")
+    uris = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page)
+    # 4 height images + 4 paper figures + binarized (+ 9 renders where rendering works)
+    assert len(uris) >= 9
+    assert all(u.startswith("iVBORw0KGgo") for u in uris)  # base64 of the PNG signature
+    assert 'src="render_' not in page and 'src="image_' not in page  # nothing linked from outside
+    assert "kind: microlens" in page and "Table 3 (micro-lens)" in page
+
+
+def test_report_md_has_table_with_paper_values(run_dir):
+    md = (run_dir / "report.md").read_text(encoding="utf-8")
+    for paper_value in ("45,814", "2,322", "1,293", "44.3 %"):
+        assert paper_value in md
+    assert "| experiment | none (D_N) | spi (D_S) | diapi (D_A) | ideal | e_D |" in md
+    assert "](image_diapi.png)" in md and "](figure_spi.png)" in md and "](binarized.png)" in md
+    assert (run_dir / "nsl2_table.md").read_text() in md
+
+
+def test_nsl2_csv_per_experiment_rows(run_dir):
+    rows = list(csv.reader((run_dir / "nsl2_table.csv").open()))
+    assert rows[0] == ["experiment", *CONTROLLERS, "e_D"]
+    assert [r[0] for r in rows[1:]] == ["1", "mean", "std", "paper"]
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    for j, c in enumerate(CONTROLLERS, 1):
+        assert float(rows[1][j]) == pytest.approx(metrics["controllers"][c]["nsl2"]["per_experiment"][0], rel=1e-5)
+    assert rows[4][1:4] == ["45814", "2322", "1293"] and rows[4][5] == "0.443"
+
+
+def test_gwy_round_trip(run_dir):
+    channels = read_gwy(run_dir / "images.gwy")
+    expected = [f"{d} {c}" for c in CONTROLLERS for d in ("trace", "retrace")] + ["topography"]
+    assert list(channels) == expected
+    with np.load(run_dir / "images.npz") as arrays:
+        for c in CONTROLLERS:
+            assert channels[f"trace {c}"].shape == (32, 32)
+            np.testing.assert_array_equal(channels[f"retrace {c}"].z, arrays[f"retrace_{c}"])
+        assert channels["topography"].shape == arrays["truth"].shape
+
+
+def test_paper_figures_written(run_dir):
+    for name in [f"figure_{c}.png" for c in CONTROLLERS] + ["binarized.png"]:
+        with Image.open(run_dir / name) as im:
+            assert im.size[0] >= 800
+
+
+def _check_renders(folder):
+    for name in RENDERS:
+        with Image.open(folder / name) as im:
+            assert im.size[0] >= 800 and im.size[1] >= 600, name
+            assert np.asarray(im).std() > 0, name
+
+
+def test_renders_written(run_dir):
+    ok, reason = rendering_available()
+    if not ok:
+        assert "3D renders skipped" in (run_dir / "report.md").read_text()
+        pytest.skip(f"off-screen rendering impossible here: {reason}")
+    _check_renders(run_dir)
+
+
+def test_cli_render_recreates_renders(run_dir, tmp_path):
+    ok, reason = rendering_available()
+    if not ok:
+        pytest.skip(f"off-screen rendering impossible here: {reason}")
+    copy = tmp_path / "copy"
+    shutil.copytree(run_dir, copy)
+    for name in RENDERS:
+        (copy / name).unlink()
+    outcome = CliRunner().invoke(app, ["render", str(copy)])
+    assert outcome.exit_code == 0, outcome.output
+    _check_renders(copy)
+
+
+def test_cli_render_rejects_non_run_folder(tmp_path):
+    (tmp_path / "notes.txt").write_text("not a run")
+    outcome = CliRunner().invoke(app, ["render", str(tmp_path)])
+    assert outcome.exit_code == 2
+    assert "not an afmsim run folder" in outcome.output
+    assert len(outcome.output.strip().splitlines()) == 1
+
+
+def test_fig8_time_saving(tmp_path):
+    from afmsim.report.paper_figures import plot_time_saving
+
+    timing = {"repeats": 3, "statistic": "median", "rows": [
+        {"M": m, "N": n, "time_saving_percent": 40.0 - m / 100 + n / 10} for m in (100, 200, 500) for n in (5, 10)]
+        + [{"M": 100, "N": 20, "skipped": "M < 8N"}]}
+    source = tmp_path / "timing.json"
+    source.write_text(json.dumps(timing))
+    out = plot_time_saving(source, tmp_path / "fig8.png")
+    with Image.open(out) as im:
+        assert im.size[0] >= 800
+
+
+def test_identification_report(tmp_path):
+    from afmsim.identification import identify, write_identification
+
+    result = identify(experiments=2, models=["spi", "diapi", "capi"])
+    write_identification(result, tmp_path)
+    for name in ("fig6_loops.png", "fig7_errors.png", "table2.md", "table2.csv", "table1.csv"):
+        assert (tmp_path / name).is_file(), name
+    rows = list(csv.reader((tmp_path / "table2.csv").open()))
+    assert [r[0] for r in rows[1:]] == ["1", "2", "mean", "std", "paper"]
+    assert rows[-1][1:3] == ["0.08", "0.021"]
+    assert "paper RMS" in (tmp_path / "table2.md").read_text()
+    assert len(list(csv.reader((tmp_path / "table1.csv").open()))) == 1 + result.settings["n_operators"]
