@@ -89,6 +89,7 @@ def test_run_writes_images_metrics_and_manifest(quick_run):
     with np.load(out / "images.npz") as arrays:
         assert arrays["trace_none"].shape == (64, 64) and arrays["retrace_diapi"].shape == (64, 64)
     assert "e_D" in output
+    assert "experiment 1/1" not in output          # no progress bar when output is not a terminal
 
 
 def test_python_api_twin_gives_the_same_arrays(quick_run):
