@@ -119,3 +119,23 @@ def test_identify_writes_tables_and_json(tmp_path):
         assert {"mean", "std"} <= set(data["models"][name]["max_V"])
         assert data["models"][name]["params"]
     assert (out / "loops.csv").read_text().startswith("t_s,voltage_V,displacement_m")
+
+
+def test_diagnose_writes_report_and_rejects_bad_records(tmp_path):
+    t = np.arange(2000) / 500.0
+    v = 5 + 4 * np.sin(2 * np.pi * t)
+    x = 10e-6 * v / 9.1 + 0.3e-6 * np.sin(2 * np.pi * t - 0.3)
+    good = tmp_path / "loop.csv"
+    np.savetxt(good, np.column_stack([t, v, x]), delimiter=",", header="t_s,v_V,x_m", comments="")
+    out = tmp_path / "diag"
+    result = runner.invoke(app, ["diagnose", "--measured", str(good), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    report = json.loads((out / "diagnosis.json").read_text())
+    assert {"baseline", "where", "effects", "verdict"} <= set(report)
+    assert (out / "diagnosis.png").exists()
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t_s,v_V\n0,1\n1,2\n")
+    result = runner.invoke(app, ["diagnose", "--measured", str(bad), "--out", str(tmp_path / "nope")])
+    assert result.exit_code == 2 and "x_m" in result.output and not (tmp_path / "nope").exists()
+    result = runner.invoke(app, ["diagnose", "--measured", str(tmp_path / "scan.npz")])
+    assert result.exit_code == 2 and "not implemented" in result.output

@@ -1,0 +1,132 @@
+"""Reading and validating a measured loop record (``t_s, v_V, x_m`` [, ``y_m``]).
+
+Every problem with the input raises :class:`ValueError` with one line that names it. Records
+that are not exactly uniformly sampled (jitter ≤ 1 % of the median interval) are accepted as is
+(the median interval is used by the linear filters); larger irregularity is resampled onto a
+uniform grid by linear interpolation. Long records are decimated by block means to at most
+:data:`MAX_SAMPLES` samples (this also averages sensor noise); the factor is reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["LoopRecord", "load_record", "MIN_SAMPLES", "MAX_SAMPLES"]
+
+MIN_SAMPLES = 200
+MAX_SAMPLES = 8000
+REQUIRED = ("t_s", "v_V", "x_m")
+
+
+@dataclass(frozen=True)
+class LoopRecord:
+    """A validated, uniformly sampled record (SI units). ``y`` is None without a ``y_m`` column."""
+
+    t: np.ndarray
+    v: np.ndarray
+    x: np.ndarray
+    y: np.ndarray | None
+    decimation: int = 1
+    source: str = "arrays"
+
+    @property
+    def dt(self) -> float:
+        return float((self.t[-1] - self.t[0]) / (self.t.size - 1))
+
+    @property
+    def n(self) -> int:
+        return int(self.t.size)
+
+
+def _read_csv(path: Path) -> dict[str, np.ndarray]:
+    if not path.is_file():
+        raise ValueError(f"record file not found: {path}")
+    with open(path, encoding="utf-8") as fh:
+        header = fh.readline().strip()
+    names = [h.strip() for h in header.split(",")]
+    missing = [c for c in REQUIRED if c not in names]
+    if missing:
+        raise ValueError(f"record {path.name} lacks column(s) {missing}; header must contain t_s,v_V,x_m[,y_m], got {names}")
+    try:
+        data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=np.float64, ndmin=2)
+    except Exception as exc:  # pragma: no cover - numpy message varies
+        raise ValueError(f"record {path.name} is not numeric CSV: {exc}") from None
+    if data.ndim != 2 or data.shape[1] != len(names):
+        raise ValueError(f"record {path.name}: rows do not match the {len(names)} header columns")
+    return {n: data[:, k] for k, n in enumerate(names) if n in (*REQUIRED, "y_m")}
+
+
+def _nan_check(name: str, a: np.ndarray) -> np.ndarray:
+    bad = ~np.isfinite(a)
+    if not bad.any():
+        return a
+    # isolated single-sample gaps are interpolated; runs (≥ 2 consecutive) are refused
+    run = bad[1:] & bad[:-1]
+    if run.any() or bad[0] or bad[-1]:
+        raise ValueError(f"column {name} contains a run of NaN/inf values ({int(bad.sum())} bad samples); "
+                         "cut the record or fill the gap")
+    idx = np.arange(a.size)
+    out = a.copy()
+    out[bad] = np.interp(idx[bad], idx[~bad], a[~bad])
+    return out
+
+
+def load_record(source, *, max_samples: int = MAX_SAMPLES) -> LoopRecord:
+    """Validated :class:`LoopRecord` from a CSV path, a dict/mapping of columns, or a tuple ``(t, v, x[, y])``."""
+    if isinstance(source, (str, Path)):
+        cols = _read_csv(Path(source))
+        label = str(source)
+    elif isinstance(source, dict):
+        missing = [c for c in REQUIRED if c not in source]
+        if missing:
+            raise ValueError(f"record lacks column(s) {missing}; need t_s, v_V, x_m (optional y_m)")
+        cols = {k: np.asarray(source[k], dtype=np.float64) for k in (*REQUIRED, "y_m") if k in source}
+        label = "arrays"
+    elif isinstance(source, (tuple, list)) and len(source) in (3, 4):
+        cols = dict(zip((*REQUIRED, "y_m"), (np.asarray(a, dtype=np.float64) for a in source)))
+        label = "arrays"
+    else:
+        raise ValueError("record must be a CSV path, a dict of columns or a tuple (t, v, x[, y])")
+    n = cols["t_s"].size
+    for k, a in cols.items():
+        if a.ndim != 1:
+            raise ValueError(f"column {k} must be 1-D, got shape {a.shape}")
+        if a.size != n:
+            raise ValueError(f"column {k} has {a.size} samples, t_s has {n}")
+    if n < MIN_SAMPLES:
+        raise ValueError(f"record too short: {n} samples, need at least {MIN_SAMPLES}")
+    t = cols["t_s"]
+    if not np.all(np.isfinite(t)):
+        raise ValueError("column t_s contains NaN/inf")
+    dt_all = np.diff(t)
+    if np.any(dt_all <= 0):
+        k = int(np.argmax(dt_all <= 0))
+        raise ValueError(f"time is not strictly increasing (t_s[{k + 1}] = {t[k + 1]!r} <= t_s[{k}] = {t[k]!r})")
+    v = _nan_check("v_V", cols["v_V"])
+    x = _nan_check("x_m", cols["x_m"])
+    y = _nan_check("y_m", cols["y_m"]) if "y_m" in cols else None
+    if np.ptp(v) == 0:
+        raise ValueError("voltage v_V is constant: a loop record needs a moving drive")
+    if np.ptp(x) == 0:
+        raise ValueError("displacement x_m is constant")
+    if y is not None and np.ptp(y) == 0:
+        y = None  # a flat cross axis carries no coupling information
+    med = float(np.median(dt_all))
+    if np.max(np.abs(dt_all - med)) > 0.01 * med:
+        tu = t[0] + med * np.arange(int(np.floor((t[-1] - t[0]) / med)) + 1)
+        v, x = np.interp(tu, t, v), np.interp(tu, t, x)
+        y = None if y is None else np.interp(tu, t, y)
+        t = tu
+    else:
+        t = t[0] + med * np.arange(t.size)
+    k = int(np.ceil(t.size / max_samples))
+    if k > 1:
+        m = t.size // k
+        blk = lambda a: a[: m * k].reshape(m, k).mean(axis=1)  # noqa: E731
+        t, v, x = blk(t), blk(v), blk(x)
+        y = None if y is None else blk(y)
+    return LoopRecord(t=np.ascontiguousarray(t), v=np.ascontiguousarray(v), x=np.ascontiguousarray(x),
+                      y=None if y is None else np.ascontiguousarray(y), decimation=k if k > 1 else 1, source=label)
