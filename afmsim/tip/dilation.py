@@ -57,25 +57,22 @@ def dilate(sample: HeightMap, tip, *, max_radius: float | None = None) -> Height
         Hard cap on the tip footprint radius [m]; by default the footprint is cropped exactly to
         tip heights ≤ the sample's height range.
     """
-    z = sample.z
-    hr = float(z.max() - z.min())
-    b, fp = structure_element(tip, sample.pixel_size, hr, max_radius=max_radius)
-    if b.size == 1:
-        return sample.with_z(z.copy())
-    # the footprint mask excludes offsets that cannot matter; structure values there are ignored
-    out = ndimage.grey_dilation(z, footprint=fp, structure=np.where(fp, b, 0.0), mode="nearest")
-    return sample.with_z(out)
+    return _morphology(ndimage.grey_dilation, sample, tip, max_radius)
 
 
 def erode(image: HeightMap, tip, *, max_radius: float | None = None) -> HeightMap:
     """Villarrubia's surface reconstruction ``I ⊖ b`` (upper bound of the true surface) [m]."""
-    z = image.z
-    hr = float(z.max() - z.min())
-    b, fp = structure_element(tip, image.pixel_size, hr, max_radius=max_radius)
+    return _morphology(ndimage.grey_erosion, image, tip, max_radius)
+
+
+def _morphology(operation, hmap: HeightMap, tip, max_radius) -> HeightMap:
+    """Apply a scipy grey-scale morphology ``operation`` with the reflected tip as structure."""
+    z = hmap.z
+    b, fp = structure_element(tip, hmap.pixel_size, float(z.max() - z.min()), max_radius=max_radius)
     if b.size == 1:
-        return image.with_z(z.copy())
-    out = ndimage.grey_erosion(z, footprint=fp, structure=np.where(fp, b, 0.0), mode="nearest")
-    return image.with_z(out)
+        return hmap.with_z(z.copy())
+    # the footprint mask excludes offsets that cannot matter; structure values there are ignored
+    return hmap.with_z(operation(z, footprint=fp, structure=np.where(fp, b, 0.0), mode="nearest"))
 
 
 def sampling_info(tip, pixel_size, height_range: float) -> dict:
