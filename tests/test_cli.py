@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 runner = CliRunner()
 
 
-@pytest.mark.parametrize("name", ["quick", "microlens", "grating"])
+@pytest.mark.parametrize("name", ["quick", "microlens", "grating", "grating_full_range"])
 def test_bundled_scenarios_validate(name):
     result = runner.invoke(app, ["validate", str(ROOT / "scenarios" / f"{name}.yaml")])
     assert result.exit_code == 0, result.output
