@@ -66,11 +66,30 @@ def _load(scenario_path: Path):
         _fail(str(error))
 
 
+def _preflight(loaded):
+    """(needed, available) bytes, or exit 2 if the sample file is unreadable or the run would not fit."""
+    from afmsim.resources import preflight
+    from afmsim.scenario import ScenarioError
+
+    try:
+        return preflight(loaded)
+    except ScenarioError as error:
+        _fail(str(error))
+
+
 @app.command()
 def validate(scenario: Path = typer.Argument(..., help="Scenario YAML file.")):
-    """Check a scenario without running it. Python: afmsim.scenario.load_scenario(path)."""
+    """Check a scenario without running it: fields, sample file, memory estimate.
+
+    Python: afmsim.scenario.load_scenario(path), then afmsim.resources.preflight(scenario).
+    """
+    from afmsim.resources import format_bytes
+
     loaded = _load(scenario)
-    typer.echo(f"{scenario}: valid ({loaded.experiments} experiments, controllers: {', '.join(loaded.controllers)})")
+    needed, available = _preflight(loaded)
+    free = f"{format_bytes(available)} available" if available is not None else "available memory unknown"
+    typer.echo(f"{scenario}: valid ({loaded.experiments} experiments, controllers: {', '.join(loaded.controllers)}; "
+               f"needs ≈ {format_bytes(needed)} of memory, {free})")
 
 
 @app.command()
@@ -82,12 +101,14 @@ def run(
 ):
     """Run a scenario: scans per controller, images, metrics (paper Tables 3–4).
 
-    Python: afmsim.experiment.run_scenario(load_scenario(path)) and afmsim.report.write_run(...).
+    Python: afmsim.resources.preflight(scenario), afmsim.experiment.run_scenario(scenario) and
+    afmsim.report.write_run(...).
     """
     import sys
 
     from afmsim.experiment import run_scenario
     from afmsim.report.run_output import write_run
+    from afmsim.resources import format_bytes
     from afmsim.runio import default_run_dir, run_folder
     from afmsim.scenario import ScenarioError, parse_scenario
 
@@ -97,6 +118,7 @@ def run(
             loaded = parse_scenario({**loaded.model_dump(mode="json"), "experiments": experiments})
         except ScenarioError as error:
             _fail(str(error))
+    needed, _ = _preflight(loaded)
     out = out or default_run_dir("run", loaded.name)
     if out.exists():
         _fail(f"output folder {out} already exists: choose another --out or remove it")
@@ -108,6 +130,11 @@ def run(
                 write_run(result, folder)
         except ValueError as error:
             _fail(str(error).splitlines()[0])
+        except OSError as error:
+            _fail(f"{error.filename or out}: {error.strerror or error}")
+        except MemoryError:
+            _fail(f"out of memory (estimated ≈ {format_bytes(needed)}): reduce scan.pixels/lines or "
+                  f"numerics.samples_per_pixel")
     _print_summary(result.metrics())
     typer.echo(f"wrote {out}")
 
@@ -222,6 +249,52 @@ def validate_diagnosis_command(
     for key, value in summary.items():
         typer.echo(f"{key}: {value}")
     typer.echo(f"wrote {out}")
+
+
+@app.command("sweep")
+def sweep_command(
+    sweep_file: Path = typer.Argument(..., help="Sweep YAML file (base scenario, grid and/or random)."),
+    scheduler: Optional[str] = typer.Option(None, help="Address of a running Dask scheduler, e.g. tcp://host:8786 "
+                                                       "(default: a local cluster, one worker process per core)."),
+    out: Optional[Path] = typer.Option(None, help="Sweep folder (default: outputs/sweep-<name>-<time>)."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the sweep in --out: only runs without a checkpoint."),
+    workers: Optional[int] = typer.Option(None, min=1, max=1024, help="Worker processes of the local cluster."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+):
+    """Run a parameter sweep as Dask tasks: results.csv/.parquet, summary.png, a checkpoint per run.
+
+    Python: afmsim.sweep.run_sweep(afmsim.sweep.load_sweep(path), out_dir, scheduler=..., resume=...).
+    """
+    import sys
+
+    from afmsim.runio import default_run_dir
+    from afmsim.sweep import SweepError, SweepRunError, load_sweep, run_sweep
+    from afmsim.sweep.progress import sweep_progress
+
+    try:
+        loaded = load_sweep(sweep_file)
+    except SweepError as error:
+        _fail(str(error))
+    if resume and out is None:
+        _fail("--resume needs --out: the sweep folder to continue")
+    if scheduler is not None and workers is not None:
+        _fail("--workers applies to the local cluster only; leave it out with --scheduler")
+    out = out or default_run_dir("sweep", loaded.name)
+    if out.exists() and not resume:
+        _fail(f"output folder {out} already exists: choose another --out, or add --resume to continue it")
+    try:
+        with sweep_progress(not quiet and sys.stderr.isatty()) as progress:
+            table = run_sweep(loaded, out, scheduler=scheduler, resume=resume, progress=progress, workers=workers)
+    except SweepError as error:
+        _fail(str(error))
+    except OSError as error:
+        _fail(f"sweep {out}: {str(error).splitlines()[0] if str(error) else type(error).__name__}")
+    except SweepRunError as error:
+        typer.echo(f"error: {error}", err=True)
+        raise typer.Exit(code=1)
+    shown = ["run_id", *loaded.parameters, *(c for c in table.columns if c.endswith(".nsl2_mean")), "e_D"]
+    typer.echo(table[[c for c in shown if c in table.columns]].to_string(index=False, max_rows=40))
+    typer.echo(f"wrote {out} ({len(table)} runs)")
 
 
 def main() -> None:  # pragma: no cover - console entry point

@@ -1,8 +1,18 @@
 """Run folders: every run writes into its own folder, atomically, with a manifest.
 
-A run is assembled in a hidden temporary folder beside its destination and renamed into place
-only when everything has been written, so an interrupted or failed run leaves no half-written
-output. ``manifest.json`` records the configuration, seed, package versions and git revision.
+A run is assembled in a hidden staging folder beside its destination, ``.NAME.partial-XXXXXXXX``,
+and renamed into place (one ``os.replace``) only when everything has been written, ``manifest.json``
+last; so a folder named ``NAME`` is always complete, and a run that fails, or is interrupted by
+Ctrl-C (SIGINT → ``KeyboardInterrupt``), removes its staging folder and leaves nothing behind.
+
+A process killed outright (SIGKILL, SIGTERM, power loss) cannot clean up: its hidden
+``.partial-`` folder stays. Such a folder never looks complete — it has no ``manifest.json``
+(except if the kill lands in the microseconds between writing the manifest and the rename;
+treat every ``.partial-`` folder as incomplete whatever it holds). Each staging folder holds a
+``.lock`` file that its run keeps ``flock``-ed while it lives (the kernel drops the lock when the
+process dies, however it dies); the next :func:`run_folder` into the same parent folder removes
+every staging folder whose lock it can take, see :func:`remove_stale_staging`. Where ``fcntl`` is
+missing (Windows) nothing is locked and stale folders are left for the user to delete.
 """
 
 from __future__ import annotations
@@ -23,7 +33,14 @@ import numpy as np
 
 import afmsim
 
-__all__ = ["run_folder", "default_run_dir", "write_json", "versions", "git_revision"]
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None
+
+__all__ = ["run_folder", "remove_stale_staging", "default_run_dir", "write_json", "versions", "git_revision"]
+
+_LOCK = ".lock"
 
 _PACKAGES = ("numpy", "scipy", "numba", "scikit-image", "opencv-python-headless", "trimesh", "pyvista", "vtk",
              "matplotlib", "pydantic", "gwyfile")
@@ -87,21 +104,63 @@ def default_run_dir(kind: str, name: str, base="outputs") -> Path:
     return Path(base) / f"{kind}-{name}-{stamp}"
 
 
+def _hold_lock(staging: Path):
+    """Create ``staging/.lock`` already locked (flock'ed under a temporary name, then renamed), so a
+    cleaner never sees it unlocked while this process lives; returns the descriptor, or None."""
+    if fcntl is None:  # pragma: no cover - Windows
+        return None
+    fd, tmp = tempfile.mkstemp(dir=staging, prefix=f"{_LOCK}-")
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    os.replace(tmp, staging / _LOCK)
+    return fd
+
+
+def remove_stale_staging(parent) -> list[Path]:
+    """Remove the hidden ``.*.partial-*`` staging folders in ``parent`` left by runs that died.
+
+    A folder is removed only when its ``.lock`` can be locked, i.e. no live process holds it; a
+    folder without ``.lock`` (a run in its last microseconds, or not made by afmsim) is left alone.
+    Returns the folders removed.
+    """
+    removed = []
+    if fcntl is None:  # pragma: no cover - Windows
+        return removed
+    for folder in sorted(Path(parent).glob(".*.partial-*")):
+        try:
+            fd = os.open(folder / _LOCK, os.O_RDONLY)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            continue
+        shutil.rmtree(folder, ignore_errors=True)
+        os.close(fd)
+        removed.append(folder)
+    return removed
+
+
 @contextmanager
 def run_folder(destination, *, config: dict, seed: int, command: str):
-    """Yield a temporary folder to write a run into; on success move it to ``destination``.
+    """Yield a hidden staging folder to write a run into; on success move it to ``destination``.
 
-    ``destination`` must not exist yet. ``manifest.json`` (config, seed, versions, git revision,
+    ``destination`` must not exist yet. Stale staging folders of dead runs beside it are removed
+    first (:func:`remove_stale_staging`). ``manifest.json`` (config, seed, versions, git revision,
     command, start and end times) is written last, then the folder is renamed into place. On any
-    exception the temporary folder is removed and nothing appears at ``destination``.
+    exception, ``KeyboardInterrupt`` included, the staging folder is removed and nothing appears
+    at ``destination``.
     """
     destination = Path(destination)
     if destination.exists():
         raise FileExistsError(f"output folder {destination} already exists: choose another --out or remove it")
     destination.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_staging(destination.parent)
     staging = Path(tempfile.mkdtemp(dir=destination.parent, prefix=f".{destination.name}.partial-"))
+    lock = None
     started = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     try:
+        lock = _hold_lock(staging)
         yield staging
         write_json(staging / "manifest.json", {
             "command": command, "config": config, "seed": seed, "versions": versions(),
@@ -109,7 +168,12 @@ def run_folder(destination, *, config: dict, seed: int, command: str):
             "started_utc": started, "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             "units": "SI (m, V, s) unless a key names another unit",
         })
+        if lock is not None:
+            (staging / _LOCK).unlink()  # still held through the descriptor until the rename is done
         os.replace(staging, destination)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
+    finally:
+        if lock is not None:
+            os.close(lock)

@@ -5,42 +5,89 @@ Units at this edge are the ones an AFM user thinks in and are part of every fiel
 Unknown keys, wrong types and out-of-range values are rejected by :func:`load_scenario` with a
 one-line :class:`ScenarioError` that names the field, the value and the allowed range.
 
+What counts as bad input: a number field given a bool, a string with a unit (``"30 um"``), NaN,
+±inf or a value outside its range; a bool field given anything but ``true``/``false``; a name
+that is not a plain file-name stem (it becomes part of the run folder's name); combinations the
+simulation cannot build (micro-lens sag above half the diameter or pitch below the diameter,
+grating sidewalls wider than a line, a Z-loop gain that is unstable at the loop rate, an
+identification cycle with too few samples for the controllers' fits, CAPI with one operator);
+fewer than 4 lines (the image scores need 4). The file
+itself must be UTF-8 YAML of at most :data:`MAX_FILE_BYTES` without duplicate keys, aliases
+(``*name``, which can expand without bound) or nesting deeper than :data:`MAX_DEPTH`.
+
 Physics lives in ``sample``, ``tip``, ``stage``, ``z_stage``, ``z_feedback``, ``scan`` and
 ``identification``; numerical knobs that trade accuracy for speed live apart in ``numerics``.
 """
 
 from __future__ import annotations
 
+import math
+import re
+import reprlib
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
 import yaml
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, ValidationError,
+                      field_validator, model_validator)
 
 from afmsim.compensation import CONTROLLER_NAMES
+from afmsim.hysteresis.fitting import MIN_SAMPLES_PER_WEIGHT
+from afmsim.samples.loaders import MAP_SUFFIXES, MESH_SUFFIXES
 
-__all__ = ["Scenario", "ScenarioError", "load_scenario", "parse_scenario"]
+__all__ = ["Scenario", "ScenarioError", "load_scenario", "parse_scenario", "read_yaml", "check_sample_files",
+           "MAX_FILE_BYTES", "MAX_DEPTH"]
+
+MAX_FILE_BYTES = 1 << 20
+"""Largest scenario file read, bytes (1 MiB; the bundled ones are under 1 KiB)."""
+
+MAX_DEPTH = 32
+"""Deepest YAML nesting accepted (a scenario needs 3)."""
+
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+
+# weights each controller's fit identifies, (per operator, constant): afmsim.hysteresis *.fit and
+# afmsim.compensation.VendorLinearisation (cubic per branch); each needs MIN_SAMPLES_PER_WEIGHT samples
+_FIT_WEIGHTS = {"spi": (1, 0), "diapi": (2, 0), "iiapi": (2, 0), "capi": (4, 0), "vendor": (0, 8)}
 
 
 class ScenarioError(ValueError):
     """A scenario that cannot be run; the message is one line naming the field."""
 
+    def __init__(self, message: str):
+        super().__init__(" ".join(str(message).split()))
+
+
+class _FieldError(ValueError):
+    """A cross-field check's failure, tagged with the field (relative to its block) to blame."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(message)
+        self.field = field
+
+
+def _not_bool(value):
+    # pydantic would read true/false as 1/0 in a number field
+    if isinstance(value, bool):
+        raise ValueError(f"must be a number, got {str(value).lower()}")
+    return value
+
 
 def _ranged(kind, lo, hi, unit: str = ""):
     def check(value):
-        if not (lo <= value <= hi):
+        if not (lo <= value <= hi):  # also false for NaN
             raise ValueError(f"must be in [{lo}, {hi}]{unit}, got {value}")
         return value
-    return Annotated[kind, AfterValidator(check)]
+    return Annotated[kind, BeforeValidator(_not_bool), AfterValidator(check)]
 
 
 def Range(lo, hi, unit: str = ""):  # noqa: N802 - reads like a type in field declarations
-    """A float field constrained to [lo, hi]; the error message states the range and unit."""
+    """A float field constrained to [lo, hi] (NaN, ±inf and bools rejected); the error states the range."""
     return _ranged(float, lo, hi, f" {unit}" if unit else "")
 
 
 def IntRange(lo, hi):  # noqa: N802
-    """An int field constrained to [lo, hi]."""
+    """An int field constrained to [lo, hi] (bools rejected)."""
     return _ranged(int, lo, hi)
 
 
@@ -58,6 +105,16 @@ class MicroLensSample(_Block):
     pitch_um: Range(0.5, 100, "µm") = 12.0
     arrangement: Literal["square", "hexagonal"] = "square"
 
+    @model_validator(mode="after")
+    def _buildable(self):
+        if self.sag_um > self.diameter_um / 2:
+            raise _FieldError("sag_um", f"must be <= diameter_um / 2 = {self.diameter_um / 2:g} µm "
+                                        f"(a cap beyond a hemisphere overhangs), got {self.sag_um:g}")
+        if self.pitch_um < self.diameter_um:
+            raise _FieldError("pitch_um", f"must be >= diameter_um = {self.diameter_um:g} µm "
+                                          f"(lenses would overlap), got {self.pitch_um:g}")
+        return self
+
 
 class GratingSample(_Block):
     """HS-500MG silicon grating: 500 nm steps, 5 µm period lines along y."""
@@ -68,6 +125,17 @@ class GratingSample(_Block):
     duty_cycle: Range(0.05, 0.95) = 0.5
     sidewall_deg: Range(30, 90, "deg") = 70.0
 
+    @model_validator(mode="after")
+    def _buildable(self):
+        # mirrors afmsim.samples.grating: each sidewall spans step / tan(angle) horizontally
+        span_um = self.step_nm * 1e-3 / math.tan(math.radians(self.sidewall_deg)) if self.sidewall_deg < 90 else 0.0
+        room_um = min(self.duty_cycle, 1 - self.duty_cycle) * self.period_um
+        if span_um > room_um * (1 + 1e-12):
+            raise _FieldError("sidewall_deg", f"sidewalls span {span_um:.3g} µm, wider than the narrower of line "
+                                              f"and gap ({room_um:.3g} µm): raise sidewall_deg, lower step_nm or "
+                                              f"widen period_um")
+        return self
+
 
 class MeshSample(_Block):
     """Any triangle mesh trimesh reads (STL/OBJ/PLY), heights by ray casting."""
@@ -75,6 +143,11 @@ class MeshSample(_Block):
     kind: Literal["mesh"]
     path: Path
     unit_m: Range(1e-12, 1.0, "m") = 1e-6
+
+    @field_validator("path")
+    @classmethod
+    def _suffix(cls, path: Path) -> Path:
+        return _check_suffix(path, MESH_SUFFIXES)
 
 
 class HeightMapSample(_Block):
@@ -84,6 +157,17 @@ class HeightMapSample(_Block):
     path: Path
     pixel_size_nm: Range(0.01, 1e5, "nm")
     z_unit_m: Range(1e-12, 1.0, "m") = 1.0
+
+    @field_validator("path")
+    @classmethod
+    def _suffix(cls, path: Path) -> Path:
+        return _check_suffix(path, MAP_SUFFIXES)
+
+
+def _check_suffix(path: Path, allowed) -> Path:
+    if path.suffix.lower() not in allowed:
+        raise ValueError(f"file type {path.suffix or '(none)'!r} not supported; use one of {', '.join(allowed)}")
+    return path
 
 
 SampleSpec = Annotated[Union[MicroLensSample, GratingSample, MeshSample, HeightMapSample], Field(discriminator="kind")]
@@ -102,19 +186,19 @@ class StageSpec(_Block):
     """The XY plant's physics switches and parameters (SI conversions in afmsim.experiment)."""
 
     hysteresis: Literal["preisach", "bouc_wen"] = "preisach"
-    saturation: bool = True
-    amplifier: bool = True
-    creep: bool = True
-    drift: bool = True
-    dynamics: bool = True
+    saturation: StrictBool = True
+    amplifier: StrictBool = True
+    creep: StrictBool = True
+    drift: StrictBool = True
+    dynamics: StrictBool = True
     cross_coupling: Range(0.0, 0.1) = 0.005
-    sensor_noise: bool = True
+    sensor_noise: StrictBool = True
 
 
 class ZStageSpec(_Block):
     """Z stage (paper: 12 µm travel, 0.6 µm/V)."""
 
-    hysteresis: bool = True
+    hysteresis: StrictBool = True
     sensitivity_um_per_V: Range(0.01, 10, "µm/V") = 0.6
     travel_um: Range(0.5, 100, "µm") = 12.0
 
@@ -134,7 +218,7 @@ class ScanSpec(_Block):
     size_um: tuple[Range(0.1, 100, "µm"), Range(0.1, 100, "µm")] = (30.0, 30.0)
     offset_um: tuple[Range(0, 100, "µm"), Range(0, 100, "µm")] = (35.0, 35.0)
     pixels: IntRange(16, 2048) = 256
-    lines: IntRange(2, 2048) = 256
+    lines: IntRange(4, 2048) = 256
     line_rate_hz: Range(0.01, 100, "Hz") = 1.0
 
 
@@ -174,19 +258,77 @@ class Scenario(_Block):
                                                          min_length=1)
     numerics: NumericsSpec = NumericsSpec()
 
+    @field_validator("name")
+    @classmethod
+    def _name(cls, name: str) -> str:
+        # the name becomes part of the default run folder's name
+        if not _NAME.fullmatch(name):
+            raise ValueError("must be 1–64 letters, digits, '_', '.' or '-', starting with a letter or digit")
+        return name
+
+    @model_validator(mode="after")
+    def _identifiable(self):
+        n = self.identification.n_operators
+        if "capi" in self.controllers and n < 2:
+            raise _FieldError("identification.n_operators", f"must be >= 2 for the capi controller, got {n}")
+        weights = 0
+        for name in self.controllers:
+            per_operator, constant = _FIT_WEIGHTS.get(name, (0, 0))
+            weights = max(weights, per_operator * n + constant)
+        needed = max(MIN_SAMPLES_PER_WEIGHT * weights, 2)
+        ident = self.identification
+        samples = round(ident.sample_rate_hz / ident.frequency_hz) + 1
+        if samples < needed:
+            raise _FieldError("identification.sample_rate_hz",
+                              f"{ident.sample_rate_hz:g} Hz / frequency_hz {ident.frequency_hz:g} Hz gives {samples} "
+                              f"samples per cycle, the controllers need >= {needed}: raise sample_rate_hz or lower "
+                              f"frequency_hz")
+        return self
+
+    @model_validator(mode="after")
+    def _stable_z_loop(self):
+        # mirrors afmsim.scan.zloop.track_surface: the loop runs ceil(loop rate / sample rate) steps per sample
+        sample_rate_hz = 2 * self.scan.pixels * self.numerics.samples_per_pixel * self.scan.line_rate_hz
+        step_s = 1.0 / (sample_rate_hz * math.ceil(self.numerics.z_loop_rate_hz / sample_rate_hz))
+        if self.z_feedback.ki_per_s * step_s > 0.5:
+            raise _FieldError("z_feedback.ki_per_s",
+                              f"ki × Z-loop period = {self.z_feedback.ki_per_s * step_s:.3g} must be <= 0.5 "
+                              f"(unstable loop): lower ki_per_s or raise numerics.z_loop_rate_hz")
+        return self
+
+
+_TAGS = ("microlens", "grating", "mesh", "heightmap")
+_SHORT = reprlib.Repr()  # a bounded repr: an offending value may be huge or deeply nested
+_SHORT.maxlevel, _SHORT.maxdict, _SHORT.maxlist, _SHORT.maxstring, _SHORT.maxother = 2, 3, 3, 40, 40
+
 
 def _one_line(error: ValidationError) -> str:
     first = error.errors()[0]
-    where = ".".join(str(p) for p in first["loc"] if not (isinstance(p, str) and p in ("microlens", "grating", "mesh", "heightmap")))
+    loc = [str(p) for p in first["loc"]]
+    if loc[:1] == ["sample"] and len(loc) > 1 and loc[1] in _TAGS:
+        del loc[1]  # pydantic's union branch, not a key of the file
+    cause = first.get("ctx", {}).get("error")
+    if isinstance(cause, _FieldError):
+        loc.append(cause.field)
     message = first["msg"].removeprefix("Value error, ")
     value = first.get("input")
-    shown = "" if first["type"] in ("value_error", "missing") or isinstance(value, dict) else f" (got {value!r})"
+    if first["type"] in ("model_type", "model_attributes_type", "dict_type"):
+        message = "must be a mapping of fields (key: value)"
+    if first["type"] in ("union_tag_not_found", "union_tag_invalid"):
+        loc.append("kind")
+        message = f"must be one of {', '.join(_TAGS)}"
+        value = value.get("kind") if first["type"] == "union_tag_invalid" else None
+    shown = "" if first["type"] in ("value_error", "missing") or value is None else f" (got {_SHORT.repr(value)})"
+    if first["type"] in ("float_parsing", "int_parsing"):
+        shown += "; give a plain number, the unit is in the field name"
     more = f" [+{len(error.errors()) - 1} more]" if len(error.errors()) > 1 else ""
-    return f"{where or 'scenario'}: {message}{shown}{more}"
+    return f"{'.'.join(loc) or 'scenario'}: {message}{shown}{more}"
 
 
 def parse_scenario(data: dict) -> Scenario:
     """Validate a scenario given as a mapping; raises :class:`ScenarioError` (one line)."""
+    if data is None:
+        raise ScenarioError("scenario: empty; expected a mapping of blocks (name, sample, scan, …)")
     if not isinstance(data, dict):
         raise ScenarioError(f"scenario: must be a mapping of blocks, got {type(data).__name__}")
     try:
@@ -195,13 +337,92 @@ def parse_scenario(data: dict) -> Scenario:
         raise ScenarioError(_one_line(error)) from None
 
 
-def load_scenario(path) -> Scenario:
-    """Read and validate a scenario YAML file; raises :class:`ScenarioError` (one line)."""
+class _ScenarioLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):
+    """PyYAML's safe loader (libyaml's when built with it), stricter: no duplicate keys, ``1e5`` is a float."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            if isinstance(key, (str, int, float, bool)) or key is None:
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", key_node.start_mark)
+                seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+# YAML 1.1 reads 1e5 (no dot) as a string; scenario files mean the number.
+_ScenarioLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+$"),
+                                      list("-+0123456789"))
+
+
+def _check_structure(text: str) -> None:
+    """Refuse aliases (``*name``: they can expand without bound) and nesting deeper than MAX_DEPTH,
+    from the parser's events, before anything is built."""
+    depth = 0
+    for event in yaml.parse(text, Loader=_ScenarioLoader):
+        if isinstance(event, yaml.AliasEvent):
+            raise yaml.MarkedYAMLError(problem=f"alias *{event.anchor} not allowed in a scenario file",
+                                       problem_mark=event.start_mark)
+        if isinstance(event, yaml.CollectionStartEvent):
+            depth += 1
+            if depth > MAX_DEPTH:
+                raise yaml.MarkedYAMLError(problem=f"nested deeper than {MAX_DEPTH} levels",
+                                           problem_mark=event.start_mark)
+        elif isinstance(event, yaml.CollectionEndEvent):
+            depth -= 1
+
+
+def read_yaml(path):
+    """Read a scenario-like YAML file (see the module docstring for the limits); raises :class:`ScenarioError`."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        with open(path, "rb") as handle:
+            raw = handle.read(MAX_FILE_BYTES + 1)
     except OSError as error:
-        raise ScenarioError(f"{path}: cannot read ({error.strerror})") from None
+        raise ScenarioError(f"{path}: cannot read ({error.strerror or type(error).__name__})") from None
+    except ValueError as error:  # e.g. an embedded NUL byte in the path
+        raise ScenarioError(f"{path!r}: cannot read ({error})") from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise ScenarioError(f"{path}: larger than {MAX_FILE_BYTES >> 20} MiB, not a scenario file")
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        raise ScenarioError(f"{path}: not UTF-8 text (byte 0x{raw[error.start]:02x} at offset {error.start})") from None
+    try:
+        _check_structure(text)
+        return yaml.load(text, Loader=_ScenarioLoader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.MarkedYAMLError as error:
+        mark = error.problem_mark or error.context_mark
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        what = ", ".join(part for part in (error.context, error.problem) if part)
+        raise ScenarioError(f"{path}: not valid YAML{where}: {what}") from None
     except yaml.YAMLError as error:
         raise ScenarioError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
-    return parse_scenario(data)
+
+
+def load_scenario(path) -> Scenario:
+    """Read and validate a scenario YAML file; raises :class:`ScenarioError` (one line)."""
+    return parse_scenario(read_yaml(path))
+
+
+def check_sample_files(scenario: Scenario) -> None:
+    """Raise :class:`ScenarioError` if the sample file a ``mesh``/``heightmap`` scenario names is not a readable file.
+
+    Kept out of :func:`parse_scenario` so that a written run's ``scenario.yaml`` still parses after
+    the sample file has moved.
+    """
+    path = getattr(scenario.sample, "path", None)
+    if path is None:
+        return
+    try:
+        exists, regular = path.exists(), path.is_file()
+    except (OSError, ValueError) as error:  # ValueError: an embedded NUL byte
+        raise ScenarioError(f"sample.path: cannot read {str(path)!r} ({error})") from None
+    if not regular:
+        raise ScenarioError(f"sample.path: {str(path)!r} {'is not a regular file' if exists else 'does not exist'}")
+    try:
+        with open(path, "rb"):
+            pass
+    except OSError as error:
+        raise ScenarioError(f"sample.path: cannot read {str(path)!r} ({error.strerror})") from None

@@ -1,0 +1,99 @@
+"""Atomic run folders (issue 6): a run that fails, is interrupted or is killed leaves no folder
+that looks complete; a killed run's hidden staging folder is removed by the next run."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from afmsim.runio import remove_stale_staging, run_folder
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _start_quick_run(out: Path) -> subprocess.Popen:
+    # SIGINT restored to its default so that Python installs its KeyboardInterrupt handler even
+    # when this test runs as a background job (which starts with SIGINT ignored)
+    command = [sys.executable, "-m", "afmsim", "run", "scenarios/quick.yaml", "--out", str(out), "--quiet"]
+    return subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+
+def _wait_for_staging(out: Path, proc: subprocess.Popen) -> Path:
+    """The hidden staging folder of the run writing ``out``, once it exists (the run is then mid-way)."""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        found = list(out.parent.glob(f".{out.name}.partial-*"))
+        if found:
+            return found[0]
+        if proc.poll() is not None:
+            pytest.fail(f"run ended before its staging folder appeared: {proc.communicate()}")
+        time.sleep(0.01)
+    proc.kill()
+    pytest.fail("no staging folder after 120 s")
+
+
+def test_sigkilled_run_leaves_nothing_that_looks_complete_and_the_next_run_cleans_up(tmp_path):
+    out = tmp_path / "o"
+    proc = _start_quick_run(out)
+    staging = _wait_for_staging(out, proc)
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    assert not out.exists()
+    assert list(tmp_path.rglob("manifest.json")) == []
+    assert staging.is_dir()                   # the dying process cannot clean up ...
+    with run_folder(tmp_path / "next", config={}, seed=0, command="test"):
+        pass
+    assert not staging.exists()               # ... the next run into the same folder does
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["next"]
+
+
+def test_interrupted_run_removes_its_staging_folder(tmp_path):
+    out = tmp_path / "o"
+    proc = _start_quick_run(out)
+    _wait_for_staging(out, proc)
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=60)
+    assert proc.returncode != 0
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failed_run_leaves_nothing(tmp_path):
+    for error in (ValueError("bad"), KeyboardInterrupt()):
+        with pytest.raises(type(error)):
+            with run_folder(tmp_path / "o", config={}, seed=0, command="test") as staging:
+                (staging / "half.txt").write_text("half")
+                raise error
+        assert list(tmp_path.iterdir()) == []
+
+
+def test_successful_run_is_renamed_into_place_with_its_manifest(tmp_path):
+    with run_folder(tmp_path / "o", config={"a": 1}, seed=5, command="test") as staging:
+        assert staging.parent == tmp_path and staging.name.startswith(".o.partial-")
+        (staging / "result.txt").write_text("done")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["manifest.json", "result.txt"]
+    manifest = json.loads((tmp_path / "o" / "manifest.json").read_text())
+    assert manifest["config"] == {"a": 1} and manifest["seed"] == 5 and manifest["command"] == "test"
+
+
+def test_existing_destination_is_refused(tmp_path):
+    (tmp_path / "o").mkdir()
+    with pytest.raises(FileExistsError, match="already exists"):
+        with run_folder(tmp_path / "o", config={}, seed=0, command="test"):
+            pass
+    assert [p.name for p in tmp_path.iterdir()] == ["o"]
+
+
+def test_stale_cleanup_spares_live_runs_and_foreign_folders(tmp_path):
+    foreign = tmp_path / ".x.partial-foreign"           # no lock file: not ours, or about to be renamed
+    foreign.mkdir()
+    with run_folder(tmp_path / "live", config={}, seed=0, command="test") as staging:
+        assert remove_stale_staging(tmp_path) == []
+        assert staging.is_dir() and foreign.is_dir()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".x.partial-foreign", "live"]
