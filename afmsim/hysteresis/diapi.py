@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .fitting import branch_signs, check_fit_inputs, operator_widths, solve_weights
-from .operators import osp
+from .operators import osp, osp_weighted
 
 __all__ = ["DIAPI"]
 
@@ -66,8 +66,8 @@ class DIAPI:
     def predict(self, displacement) -> np.ndarray:
         """Feedforward voltage (V) for a displacement trajectory (m), from the eq. (4) state."""
         d = np.asarray(displacement, dtype=np.float64)
-        H = osp(d - self.offset, self.widths, self.h0)
-        return np.where(branch_signs(d) > 0, H @ self.weights_trace, H @ self.weights_retrace) + self.bias
+        weights = np.stack([self.weights_trace, self.weights_retrace])
+        return osp_weighted(d - self.offset, self.widths, weights, self.h0) + self.bias
 
     @property
     def asymmetry(self) -> np.ndarray:

@@ -17,7 +17,9 @@ rule once to the stored state ``h0``: ``H(0) = max{d(0) − r, min[d(0), h0]}`` 
 meaning for OSP. Bipolar input needs no special treatment: the recursion never assumes d ≥ 0.
 
 Performance: the compiled kernel loops over samples outside and operators inside, writing into a
-preallocated ``(M, N)`` array; see ``benchmarks/bench_operators.py`` for measured figures.
+preallocated ``(M, N)`` array; see ``benchmarks/bench_operators.py`` for measured figures. Where only
+weighted sums of the operator outputs are needed (a model's prediction), :func:`osp_weighted` forms
+them sample by sample and never stores the ``(M, N)`` array (8·N bytes per sample less traffic).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["osp", "play", "osp_reference", "play_reference"]
+__all__ = ["osp", "osp_weighted", "play", "osp_reference", "play_reference"]
 
 
 @njit(cache=True, nogil=True)
@@ -50,6 +52,25 @@ def _play_kernel(d, widths, h0, out):  # pragma: no cover - compiled
         di = d[i]
         for j in range(n):
             out[i, j] = max(di - widths[j], min(di + widths[j], out[i - 1, j]))
+
+
+@njit(cache=True, nogil=True)
+def _osp_weighted_kernel(d, widths, h0, w_rise, w_fall, out):  # pragma: no cover - compiled
+    state = h0.copy()
+    rising = True
+    for i in range(d.shape[0]):
+        di = d[i]
+        if i > 0:
+            if di == d[i - 1]:  # a repeated input leaves every operator and the branch as they are
+                out[i] = out[i - 1]
+                continue
+            rising = di > d[i - 1]
+        w = w_rise if rising else w_fall
+        total = 0.0
+        for j in range(widths.shape[0]):
+            state[j] = max(di - widths[j], min(di, state[j]))
+            total += w[j] * state[j]
+        out[i] = total
 
 
 def _prepare(d, widths, h0):
@@ -85,6 +106,34 @@ def osp(d, widths, h0=0.0) -> np.ndarray:
     d, widths, h0 = _prepare(d, widths, h0)
     out = np.empty((d.size, widths.size))
     _osp_kernel(d, widths, h0, out)
+    return out
+
+
+def osp_weighted(d, widths, weights, h0=0.0) -> np.ndarray:
+    """Weighted sum of the OSP operator outputs, ``Σ_j w_j·H(i, j)`` (the sum of eq. 3), compiled.
+
+    Parameters
+    ----------
+    d, widths, h0 : as for :func:`osp` (input and widths in one unit, e.g. metres).
+    weights : array_like, shape (N,) or (2, N)
+        One weight vector for every sample, or the trace weights (row 0, used while ``d`` rises)
+        and the retrace weights (row 1, while it falls); the branch is the sign of the increment
+        of ``d``, a zero increment keeps the last branch and the first sample is on the trace, as
+        in :func:`afmsim.hysteresis.fitting.branch_signs`.
+
+    Returns
+    -------
+    numpy.ndarray, shape (M,)
+        The weighted sums (e.g. volts for weights in V/m), formed sample by sample without
+        storing the ``(M, N)`` operator outputs.
+    """
+    d, widths, h0 = _prepare(d, widths, h0)
+    weights = np.asarray(weights, dtype=np.float64)
+    if weights.shape not in ((widths.size,), (2, widths.size)):
+        raise ValueError(f"weights must have shape ({widths.size},) or (2, {widths.size}), got {weights.shape}")
+    w_rise, w_fall = (np.ascontiguousarray(w) for w in np.broadcast_to(weights, (2, widths.size)))
+    out = np.empty(d.size)
+    _osp_weighted_kernel(d, widths, h0, w_rise, w_fall, out)
     return out
 
 

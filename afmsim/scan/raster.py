@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import map_coordinates
+from numba import njit
 
 from afmsim.samples.heightmap import HeightMap
 
@@ -30,15 +30,38 @@ class ScanImages:
     actual_x_retrace: np.ndarray
 
 
+@njit(cache=True, nogil=True)
+def _bilinear(z, x, y, x0, y0, dx, dy, out):  # pragma: no cover - compiled
+    last_row, last_col = z.shape[0] - 1, z.shape[1] - 1
+    for k in range(x.size):
+        r = (y[k] - y0) / dy
+        c = (x[k] - x0) / dx
+        if r != r or c != c:  # NaN position: no index to read
+            out[k] = np.nan
+            continue
+        r = min(max(r, 0.0), float(last_row))
+        c = min(max(c, 0.0), float(last_col))
+        i, j = int(r), int(c)
+        i1, j1 = min(i + 1, last_row), min(j + 1, last_col)
+        fr, fc = r - i, c - j
+        out[k] = ((1.0 - fr) * ((1.0 - fc) * z[i, j] + fc * z[i, j1])
+                  + fr * ((1.0 - fc) * z[i1, j] + fc * z[i1, j1]))
+
+
 def surface_under_tip(surface: HeightMap, x_m: np.ndarray, y_m: np.ndarray) -> np.ndarray:
     """Dilated surface height (m) at actual tip positions, bilinear between pixel centres.
 
     Positions outside the map read the nearest edge pixel; callers size the map with a margin
-    that covers the stage's excursions.
+    that covers the stage's excursions. Same values as ``scipy.ndimage.map_coordinates(order=1,
+    mode="nearest")`` to rounding, compiled (numba) because the scan asks for 10⁶–10⁷ points and
+    the general spline machinery costs ~5× more per point.
     """
-    rows = (np.asarray(y_m) - surface.origin[1]) / surface.pixel_size[1]
-    cols = (np.asarray(x_m) - surface.origin[0]) / surface.pixel_size[0]
-    return map_coordinates(surface.z, [rows, cols], order=1, mode="nearest")
+    x, y = np.broadcast_arrays(np.asarray(x_m, dtype=np.float64), np.asarray(y_m, dtype=np.float64))
+    out = np.empty(x.shape)
+    _bilinear(np.ascontiguousarray(surface.z, dtype=np.float64), np.ascontiguousarray(x).ravel(),
+              np.ascontiguousarray(y).ravel(), float(surface.origin[0]), float(surface.origin[1]),
+              float(surface.pixel_size[0]), float(surface.pixel_size[1]), out.reshape(-1))
+    return out
 
 
 def scan_frame(surface: HeightMap, trajectory: RasterTrajectory, stage, controller_x, controller_y,

@@ -95,8 +95,12 @@ class RasterTrajectory:
         Both images are returned left → right (the retrace is re-ordered to intended x).
         """
         g = self.geometry
-        frame = np.asarray(values)[self.frame_start:].reshape(g.lines, 2, g.pixels, g.samples_per_pixel)
-        per_pixel = frame.mean(axis=3)
+        frame = np.asarray(values, dtype=np.float64)[self.frame_start:].reshape(g.lines, 2, g.pixels, g.samples_per_pixel)
+        # a running sum over the sub-samples: numpy's mean over a short last axis is ~4× slower
+        per_pixel = frame[..., 0].copy()
+        for k in range(1, g.samples_per_pixel):
+            per_pixel += frame[..., k]
+        per_pixel /= g.samples_per_pixel
         return per_pixel[:, 0, :], per_pixel[:, 1, ::-1]
 
 

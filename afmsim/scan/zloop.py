@@ -79,41 +79,68 @@ class ZFeedback:
     loop_rate_hz: float = 50_000.0
 
 
-@njit(cache=True, nogil=True)
-def _track(surface, substeps, dt, ki, kp, setpoint, noise, s_nom, s_true, u_max, hyst, a, beta, gamma, out):  # pragma: no cover
+@njit(cache=True, nogil=True, fastmath={"contract"})
+def _track(surface, substeps, dt, ki, kp, setpoint, noise, s_nom, s_true, u_max, a, beta, gamma, out):  # pragma: no cover
+    """The loop of the module docstring, rearranged so that one loop step is a short chain of operations.
+
+    The loop is a serial recurrence (10⁷–10⁸ steps per frame), so its speed is the latency of one
+    step. Same equations, other state variables: ``p = u_centre + ki·∫e dt / S_nom`` (V, the
+    integral part of the drive), the gap ``g = s − b`` (m, surface minus free tip height) and the
+    drive step ``du`` (V). Per step, with ``m = max(g, 0)`` and ``e = m + noise − setpoint``:
+    ``du = clip(p + (kp/S_nom + ki·dt/S_nom)·e, 0, u_max) − u`` and ``p += ki·dt/S_nom·e``. The
+    Bouc–Wen step ``Δh = A·du − β|du|h − γ·du|h|`` is ``du·(A − γ|h| ∓ βh)`` (− while extending,
+    + while retracting), so the free height moves by ``S_true·(du − Δh) = du·S_true·(1 − A + γ|h|
+    ± βh)`` and the next gap is ``g + Δs − that`` (Δs: the surface change to the next loop step);
+    both branch factors are formed from ``h`` one step ahead, off the critical path. The gap is
+    re-derived from ``(u, h)`` at every sample, so rounding cannot accumulate; ``A = β = γ = 0`` is
+    the linear stage. Results agree with the direct form to rounding (≈1e-13 of the height range).
+    """
     n = surface.shape[0]
     u_centre = 0.5 * u_max
     h = 0.0
     u = u_centre
+    p = u_centre
     # engaged at equilibrium on the first sample: b0 chosen so that delta = setpoint at u_centre
     b0 = surface[0] - setpoint - s_true * u_centre
-    integral = 0.0
+    c_int = ki * dt / s_nom
+    c_all = kp / s_nom + c_int
+    k_lin = s_true * (1.0 - a)
+    k_gamma = s_true * gamma
+    k_beta = s_true * beta
+    # loop step j sits at sample position k − ½ + (j + ½)/substeps: the sample's own interval, with
+    # the surface linear towards the previous sample before the centre and the next one after it;
+    # frac_* give each step's position on those two segments, step_* the change to the next step
+    frac = (np.arange(substeps) + 0.5) / substeps - 0.5
+    frac_prev = np.minimum(frac, 0.0)
+    frac_next = np.maximum(frac, 0.0)
+    step_prev = np.diff(np.append(frac_prev, frac_prev[-1]))
+    step_next = np.diff(np.append(frac_next, frac_next[-1]))
+    # Bouc–Wen: dh/du on the extending (du > 0) and retracting branch, and the free-height slope
+    # db/du = S_true·(1 − dh/du), both from the current h; kept ready for the next step
+    gain_up, gain_down = a, a
+    slope_up, slope_down = k_lin, k_lin
     for k in range(n):
-        s_prev = surface[k - 1] if k > 0 else surface[0]
-        s_next = surface[k + 1] if k + 1 < n else surface[k]
+        sk = surface[k]
+        down = sk - surface[k - 1] if k > 0 else 0.0
+        up = surface[k + 1] - sk if k + 1 < n else 0.0
+        noise_k = noise[k] - setpoint
+        drive_noise = c_all * noise_k
+        gap = sk + frac_prev[0] * down + frac_next[0] * up - (b0 + s_true * (u - h))
         acc = 0.0
         for j in range(substeps):
-            # loop step j sits at sample position k − ½ + (j + ½)/substeps: the sample's own interval
-            frac = (j + 0.5) / substeps - 0.5
-            if frac < 0.0:
-                s = surface[k] + frac * (surface[k] - s_prev)
-            else:
-                s = surface[k] + frac * (s_next - surface[k])
-            b = b0 + s_true * (u - h)
-            delta = s - b
-            if delta < 0.0:
-                delta = 0.0
-            e = delta + noise[k] - setpoint
-            integral += e * dt
-            u_new = u_centre + (kp * e + ki * integral) / s_nom
-            if u_new < 0.0:
-                u_new = 0.0
-            elif u_new > u_max:
-                u_new = u_max
-            if hyst:
-                du = u_new - u
-                h += a * du - beta * abs(du) * h - gamma * du * abs(h)
-            u = u_new
+            m = gap if gap > 0.0 else 0.0
+            du = c_all * m + (p + drive_noise - u)
+            du = min(max(du, -u), u_max - u)
+            p += c_int * (m + noise_k)
+            rising = du > 0.0
+            gap = (gap + (step_prev[j] * down + step_next[j] * up)) - du * (slope_up if rising else slope_down)
+            h += du * (gain_up if rising else gain_down)
+            abs_h = abs(h)
+            gain_up = (a - gamma * abs_h) - beta * h
+            gain_down = (a - gamma * abs_h) + beta * h
+            slope_up = (k_lin + k_gamma * abs_h) + k_beta * h
+            slope_down = (k_lin + k_gamma * abs_h) - k_beta * h
+            u += du
             acc += u
         out[k] = acc / substeps * s_nom
 
@@ -140,7 +167,10 @@ def track_surface(surface_m: np.ndarray, sample_rate_hz: float, stage: ZStage, f
     # The stage is calibrated (as users do on a step standard) so that its small-signal slope
     # S_true·(1 − A) equals the nominal sensitivity that converts the drive into height.
     true_sensitivity = stage.sensitivity_m_per_V / (1.0 - stage.bw_alpha) if stage.hysteresis else stage.sensitivity_m_per_V
+    a, beta, gamma = (stage.bw_alpha, stage.bw_beta_per_V, stage.bw_gamma_per_V) if stage.hysteresis else (0.0, 0.0, 0.0)
     _track(surface, substeps, dt, feedback.ki_per_s, feedback.kp, feedback.setpoint_m, noise,
-           stage.sensitivity_m_per_V, true_sensitivity, stage.max_voltage_V, stage.hysteresis,
-           stage.bw_alpha, stage.bw_beta_per_V, stage.bw_gamma_per_V, out)
-    return out - out[0] + surface[0]
+           stage.sensitivity_m_per_V, true_sensitivity, stage.max_voltage_V, a, beta, gamma, out)
+    start = out[0]
+    out -= start
+    out += surface[0]
+    return out

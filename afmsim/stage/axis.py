@@ -7,8 +7,10 @@ Signal path of :meth:`PiezoAxis.move` (all from the de-energised state at rest, 
 
 :meth:`PiezoAxis.measure` adds capacitive-sensor noise to a true position. Every effect has an
 ``*_enabled`` flag in :class:`AxisParams`; all linear parts are discretised with
-:func:`scipy.signal.cont2discrete` with a first-order (triangle) hold and run with
-:func:`scipy.signal.lfilter`, so the input must be uniformly sampled. The first-order hold is exact
+:func:`scipy.signal.cont2discrete` with a first-order (triangle) hold (coefficients cached per
+sample interval) and run with :func:`scipy.signal.lfilter` (amplifier) and one
+:func:`scipy.signal.sosfilt` pass (creep bank and resonance, in series), so the input must be
+uniformly sampled. The first-order hold is exact
 for the piecewise-linear drives afmsim generates and adds no delay; a zero-order hold would model a
 DAC updating only at the simulation rate and lag the stage by one sample (at a 512 S/s scan grid,
 1.95 ms ≈ 80 nm of fake trace/retrace shift), whereas real DACs update far faster.
@@ -26,7 +28,7 @@ from scipy.signal import cont2discrete, lfilter, sosfilt
 
 from .hysteresis_models import AsymmetricPreisach, HysteresisModel, LinearHysteresis
 
-__all__ = ["AxisParams", "PiezoAxis", "creep_bank", "creep_sos", "check_uniform_time"]
+__all__ = ["AxisParams", "PiezoAxis", "creep_bank", "creep_sos", "resonance_sos", "check_uniform_time"]
 
 
 @lru_cache(maxsize=32)
@@ -111,6 +113,29 @@ def check_uniform_time(t) -> float:
 def _discretise(num, den, dt):
     b, a, _ = cont2discrete((num, den), dt, method="foh")
     return np.atleast_1d(np.squeeze(b)), np.atleast_1d(a)
+
+
+@lru_cache(maxsize=64)
+def _amplifier_ba(bandwidth_hz: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """First-order low-pass ωc/(s + ωc), ωc = 2π·bandwidth (Hz), for sample interval ``dt`` (s)."""
+    wc = 2 * np.pi * bandwidth_hz
+    b, a = _discretise([wc], [1.0, wc], dt)
+    b.flags.writeable = a.flags.writeable = False  # shared by every caller through the cache
+    return b, a
+
+
+@lru_cache(maxsize=64)
+def resonance_sos(resonance_hz: float, damping_ratio: float, dt: float) -> np.ndarray:
+    """One second-order section of ω0²/(s² + 2ζω0 s + ω0²) (unit DC gain) for sample interval ``dt`` (s).
+
+    In section form so that :meth:`PiezoAxis.mechanics` runs it in the same
+    :func:`scipy.signal.sosfilt` call as the :func:`creep_sos` bank (both are linear and in series).
+    """
+    w0 = 2 * np.pi * resonance_hz
+    b, a = _discretise([w0 * w0], [1.0, 2 * damping_ratio * w0, w0 * w0], dt)
+    sos = (np.r_[b, a] / a[0])[None, :]
+    sos.flags.writeable = False  # shared by every caller through the cache
+    return sos
 
 
 @dataclass(frozen=True)
@@ -206,10 +231,7 @@ class PiezoAxis:
         if p.saturation_enabled:
             u = np.clip(u, p.v_min_V, p.v_max_V)
         if p.amplifier_enabled and p.amplifier_bandwidth_hz > 0:
-            dt = check_uniform_time(t)
-            wc = 2 * np.pi * p.amplifier_bandwidth_hz
-            b, a = _discretise([wc], [1.0, wc], dt)
-            u = lfilter(b, a, u)
+            u = lfilter(*_amplifier_ba(float(p.amplifier_bandwidth_hz), check_uniform_time(t)), u)
         return np.ascontiguousarray(u, dtype=np.float64)
 
     def static_displacement(self, u) -> np.ndarray:
@@ -219,22 +241,32 @@ class PiezoAxis:
             return p.hysteresis.apply(u)
         return LinearHysteresis(p.hysteresis.sensitivity_m_per_V, p.hysteresis.calibration_amplitude_V).apply(u)
 
-    def creep(self, t, d) -> np.ndarray:
-        """Creep: relaxation bank (:func:`creep_bank`) applied to the static displacement."""
+    def _creep_sections(self, t) -> list[np.ndarray]:
+        """The creep bank's sections for the sample times ``t`` (s), or none when creep is off."""
         p = self.params
         if not (p.creep_enabled and p.creep_gamma != 0):
-            return d
-        return sosfilt(creep_sos(float(p.creep_gamma), check_uniform_time(t)), d)
+            return []
+        return [creep_sos(float(p.creep_gamma), check_uniform_time(t))]
+
+    def _resonance_sections(self, t) -> list[np.ndarray]:
+        """The resonance's section for the sample times ``t`` (s), or none when it is off."""
+        p = self.params
+        if not (p.resonance_enabled and p.resonance_hz > 0):
+            return []
+        return [resonance_sos(float(p.resonance_hz), float(p.damping_ratio), check_uniform_time(t))]
+
+    @staticmethod
+    def _filter(sections: list[np.ndarray], d) -> np.ndarray:
+        """``d`` (m) through the given section blocks in order, one :func:`scipy.signal.sosfilt` pass."""
+        return sosfilt(np.vstack(sections), d) if sections else d
+
+    def creep(self, t, d) -> np.ndarray:
+        """Creep: relaxation bank (:func:`creep_bank`) applied to the static displacement."""
+        return self._filter(self._creep_sections(t), d)
 
     def dynamics(self, t, d) -> np.ndarray:
         """First mechanical resonance ω0²/(s² + 2ζω0 s + ω0²), unit DC gain."""
-        p = self.params
-        if not (p.resonance_enabled and p.resonance_hz > 0):
-            return d
-        dt = check_uniform_time(t)
-        w0 = 2 * np.pi * p.resonance_hz
-        b, a = _discretise([w0 * w0], [1.0, 2 * p.damping_ratio * w0, w0 * w0], dt)
-        return lfilter(b, a, d)
+        return self._filter(self._resonance_sections(t), d)
 
     def drift(self, t) -> np.ndarray:
         """Thermal drift (m) at times t (s since power-up)."""
@@ -245,11 +277,12 @@ class PiezoAxis:
         return p.drift_rate_m_per_s * t
 
     def mechanics(self, t, v) -> np.ndarray:
-        """Displacement (m) without drift and cross-coupling."""
+        """Displacement (m) without drift and cross-coupling, as a new array."""
         if np.shape(t) != np.shape(v):
             raise ValueError(f"t and v shapes differ: {np.shape(t)} vs {np.shape(v)}")
-        u = self.drive(t, v)
-        return self.dynamics(t, self.creep(t, self.static_displacement(u)))
+        # creep and resonance are linear and in series: one sosfilt pass over both
+        d = self.static_displacement(self.drive(t, v))
+        return self._filter(self._creep_sections(t) + self._resonance_sections(t), d)
 
     def move(self, t, v) -> np.ndarray:
         """True displacement (m) of this axis alone for drive v (V) at uniformly sampled t (s)."""

@@ -50,15 +50,20 @@ def _preisach_kernel(u, delta, mu, state, u_prev, out):  # pragma: no cover - co
     state s ∈ [0, 1] obeys ``s ← clip(s, r(u − α_i), r(u − β_j))`` with the unit ramp
     ``r(x) = clip(x/Δ + ½, 0, 1)`` (a relay smoothed over one grid cell, so the output is
     continuous). On a rising input only the lower bound of the rows α_i whose ramp band was
-    crossed can move; on a falling input only the upper bound of the crossed columns β_j — so
-    each sample touches O(rows crossed × N) relays instead of N²/2. ``state`` is updated in
+    crossed can move; on a falling input only the upper bound of the crossed columns β_j, and
+    only in rows that have ever been raised (``top``: the others are still off) — so each sample
+    touches O(rows crossed × N) relays instead of N²/2. The relay updates are written without
+    branches (``max``/``min``; an unchanged relay adds exactly 0). ``state`` is updated in
     place; returns the last input (the memory for a continuation call).
     """
     n = mu.shape[0]
     y = 0.0
+    top = -1  # highest row with a relay that is not off
     for i in range(n):
         for j in range(i + 1):
             y += mu[i, j] * state[i, j]
+            if state[i, j] != 0.0:
+                top = i
     for t in range(u.shape[0]):
         ut = u[t]
         if ut > u_prev:
@@ -69,16 +74,13 @@ def _preisach_kernel(u, delta, mu, state, u_prev, out):  # pragma: no cover - co
             if hi > n - 1:
                 hi = n - 1
             for i in range(lo, hi + 1):
-                target = ut / delta - i
-                if target < 0.0:
-                    target = 0.0
-                elif target > 1.0:
-                    target = 1.0
+                target = min(max(ut / delta - i, 0.0), 1.0)
                 for j in range(i + 1):
                     s = state[i, j]
-                    if s < target:
-                        y += mu[i, j] * (target - s)
-                        state[i, j] = target
+                    raised = max(s, target)
+                    y += mu[i, j] * (raised - s)
+                    state[i, j] = raised
+            top = max(top, hi)
         elif ut < u_prev:
             lo = int(np.floor(ut / delta))
             hi = int(np.ceil(u_prev / delta)) - 1
@@ -86,17 +88,13 @@ def _preisach_kernel(u, delta, mu, state, u_prev, out):  # pragma: no cover - co
                 lo = 0
             if hi > n - 1:
                 hi = n - 1
-            for j in range(lo, hi + 1):
-                target = ut / delta - j
-                if target < 0.0:
-                    target = 0.0
-                elif target > 1.0:
-                    target = 1.0
-                for i in range(j, n):
+            for j in range(lo, min(hi, top) + 1):
+                target = min(max(ut / delta - j, 0.0), 1.0)
+                for i in range(j, top + 1):
                     s = state[i, j]
-                    if s > target:
-                        y += mu[i, j] * (target - s)
-                        state[i, j] = target
+                    lowered = min(s, target)
+                    y += mu[i, j] * (lowered - s)
+                    state[i, j] = lowered
         out[t] = y
         u_prev = ut
     return u_prev
@@ -139,6 +137,7 @@ class HysteresisModel:
     calibration_amplitude_V: float
 
     def _raw(self, u: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
+        """Unscaled output for the voltages ``u`` (V); a new array, which :meth:`apply` scales in place."""
         raise NotImplementedError
 
     @cached_property
@@ -153,7 +152,9 @@ class HysteresisModel:
         u = np.ascontiguousarray(u, dtype=np.float64)
         if u.ndim != 1:
             raise ValueError(f"voltage must be 1-D, got shape {u.shape}")
-        return self._raw(u) * self._scale
+        out = self._raw(u)
+        out *= self._scale
+        return out
 
 
 @dataclass(frozen=True)
@@ -240,9 +241,21 @@ class AsymmetricPreisach(HysteresisModel):
             _preisach_kernel(u, big_u / n, self.density, state, 0.0, y)
         else:
             y[:] = 0.0
+        # x·(1 − h)·(1 + q·x)/(1 + q) + h·y with x = u/U, in place (10⁶-sample scans); q = 0 skips
+        # the curvature factor, which is then exactly 1
         q = self.reversible_curvature
-        x = u / big_u
-        return (1.0 - self.hysteretic_fraction) * x * (1.0 + q * x) / (1.0 + q) + self.hysteretic_fraction * y
+        out = u / big_u
+        if q != 0:
+            curve = q * out
+            curve += 1.0
+            out *= 1.0 - self.hysteretic_fraction
+            out *= curve
+            out /= 1.0 + q
+        else:
+            out *= 1.0 - self.hysteretic_fraction
+        y *= self.hysteretic_fraction
+        out += y
+        return out
 
 
 @dataclass(frozen=True)

@@ -36,9 +36,14 @@ class XYStage:
         """True positions (m) for drive voltages vx, vy (V) sampled at uniform times t (s)."""
         mx = self.x.mechanics(t, vx)
         my = self.y.mechanics(t, vy)
+        # in place (10⁶-sample scans): mechanics returns new arrays
         if self.coupling_enabled:
-            mx, my = mx + self.coupling_y_to_x * my, my + self.coupling_x_to_y * mx
-        return mx + self.x.drift(t), my + self.y.drift(t)
+            x_to_y = self.coupling_x_to_y * mx
+            mx += self.coupling_y_to_x * my
+            my += x_to_y
+        mx += self.x.drift(t)
+        my += self.y.drift(t)
+        return mx, my
 
     def measure(self, x, y, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Sensor readings of both axes (noise drawn from ``rng``, X first)."""
