@@ -196,31 +196,49 @@ def _print_summary(metrics: dict) -> None:
 
 @app.command()
 def diagnose(
-    measured: Path = typer.Option(..., "--measured", help="Measured loop record: CSV with columns t_s,v_V,x_m[,y_m]."),
+    measured: Path = typer.Option(..., "--measured", help="Measured data: a loop record CSV (t_s,v_V,x_m[,y_m]), or "
+                                                          "trace/retrace images: .npz (trace, retrace, scan_size_m, "
+                                                          "line_rate_hz; or a run's images.npz) or .gwy."),
+    scenario: Optional[Path] = typer.Option(None, "--scenario", help="Scenario YAML of the model: effects its stage "
+                                                                     "switches on are already modelled; for images "
+                                                                     "also the imaged sample, tip and Z loop."),
     out: Optional[Path] = typer.Option(None, help="Run folder to create (default: outputs/diagnose-<file>-<time>)."),
     baseline: str = typer.Option("preisach", help="Baseline hysteresis: preisach (asymmetric) or symmetric."),
-    seed: int = typer.Option(0, min=0, help="Seed for the significance tests' random draws."),
+    reference: str = typer.Option("auto", help="Images: what the tip traced — scenario (its sample and tip), "
+                                               "trace (the measured trace) or auto (scenario when given)."),
+    channel: Optional[str] = typer.Option(None, help="Images: controller channel of a run's images.npz/.gwy "
+                                                     "(default: none)."),
+    seed: int = typer.Option(0, min=0, help="Recorded for provenance (the diagnosis is deterministic)."),
 ):
-    """Sim-to-real gap diagnosis of a measured loop record: where the baseline misses, and which
-    unmodelled effect (creep, drift, dynamics, cross_coupling, asymmetry) closes the gap.
+    """Sim-to-real gap diagnosis of measured loops or trace/retrace images: where the baseline misses,
+    and which unmodelled effect (creep, drift, dynamics, cross_coupling, asymmetry; for images also
+    tip and z_feedback) closes the gap.
 
-    Python: afmsim.diagnosis.diagnose_loops(path, figure_path=...).
+    Python: afmsim.diagnosis.diagnose_loops(path, scenario=...) or diagnose_images(path, scenario=...).
     """
-    from afmsim.diagnosis import diagnose_loops
+    from afmsim.diagnosis import diagnose_images, diagnose_loops
     from afmsim.runio import default_run_dir, run_folder, write_json
 
-    if measured.suffix.lower() in (".npz", ".gwy"):
-        _fail(f"--measured {measured.name}: image-data diagnosis is not implemented yet; give a loop CSV (t_s,v_V,x_m)")
+    images = measured.suffix.lower() in (".npz", ".gwy")
     if baseline not in ("preisach", "symmetric"):
         _fail(f"--baseline must be 'preisach' or 'symmetric', got {baseline!r}")
+    if reference not in ("auto", "scenario", "trace"):
+        _fail(f"--reference must be 'auto', 'scenario' or 'trace', got {reference!r}")
+    loaded = _load(scenario) if scenario is not None else None
     out = out or default_run_dir("diagnose", measured.stem)
     if out.exists():
         _fail(f"output folder {out} already exists: choose another --out or remove it")
-    config = {"measured": str(measured), "baseline": baseline, "seed": seed}
+    config = {"measured": str(measured), "scenario": None if scenario is None else str(scenario), "baseline": baseline,
+              "seed": seed, **({"reference": reference, "channel": channel} if images else {})}
     try:
         with run_folder(out, config=config, seed=seed, command="diagnose") as folder:
-            report, summary = diagnose_loops(measured, rng_seed=seed, baseline=baseline,
-                                             figure_path=folder / "diagnosis.png")
+            if images:
+                report, summary = diagnose_images(measured, scenario=loaded, reference=reference, channel=channel,
+                                                  baseline="asymmetric" if baseline == "preisach" else "symmetric",
+                                                  figure_path=folder / "diagnosis.png", rng_seed=seed)
+            else:
+                report, summary = diagnose_loops(measured, rng_seed=seed, baseline=baseline, scenario=loaded,
+                                                 figure_path=folder / "diagnosis.png")
             write_json(folder / "diagnosis.json", report)
             (folder / "summary.txt").write_text(summary + "\n")
     except (ValueError, OSError) as error:
@@ -233,16 +251,22 @@ def diagnose(
 def validate_diagnosis_command(
     cases: int = typer.Option(30, min=4, max=1000, help="Simulated cases (effects, magnitudes, pairs, nulls)."),
     seed: int = typer.Option(0, min=0, help="Seed of the case generator."),
-    out: Path = typer.Option(Path("benchmarks/results/diagnosis.json"), help="Where to write the scores."),
+    kind: str = typer.Option("loops", help="What is diagnosed: loops (stage records) or images (trace/retrace scans)."),
+    out: Optional[Path] = typer.Option(None, help="Where to write the scores (default: benchmarks/results/"
+                                                  "diagnosis.json, or image_diagnosis.json for images)."),
 ):
     """Prove the diagnosis on simulated data whose effect was withheld from the model.
 
-    Python: afmsim.diagnosis.validate_diagnosis(n_cases, seed).
+    Python: afmsim.diagnosis.validate_diagnosis(n_cases, seed) or validate_image_diagnosis(n_cases, seed).
     """
-    from afmsim.diagnosis import validate_diagnosis
+    from afmsim.diagnosis import validate_diagnosis, validate_image_diagnosis
     from afmsim.runio import write_json
 
-    scores = validate_diagnosis(n_cases=cases, seed=seed)
+    if kind not in ("loops", "images"):
+        _fail(f"--kind must be 'loops' or 'images', got {kind!r}")
+    out = out or Path("benchmarks/results") / ("diagnosis.json" if kind == "loops" else "image_diagnosis.json")
+    run = validate_diagnosis if kind == "loops" else validate_image_diagnosis
+    scores = run(n_cases=cases, seed=seed)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_json(out, scores)
     summary = {k: v for k, v in scores.items() if not isinstance(v, (list, dict))}

@@ -137,5 +137,5 @@ def test_diagnose_writes_report_and_rejects_bad_records(tmp_path):
     bad.write_text("t_s,v_V\n0,1\n1,2\n")
     result = runner.invoke(app, ["diagnose", "--measured", str(bad), "--out", str(tmp_path / "nope")])
     assert result.exit_code == 2 and "x_m" in result.output and not (tmp_path / "nope").exists()
-    result = runner.invoke(app, ["diagnose", "--measured", str(tmp_path / "scan.npz")])
-    assert result.exit_code == 2 and "not implemented" in result.output
+    result = runner.invoke(app, ["diagnose", "--measured", str(tmp_path / "scan.npz"), "--out", str(tmp_path / "no")])
+    assert result.exit_code == 2 and "image file not found" in result.output and not (tmp_path / "no").exists()

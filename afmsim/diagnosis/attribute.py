@@ -89,8 +89,12 @@ def _rms(a) -> float:
 
 
 def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=None, figure_path=None,
-                    train_fraction: float = TRAIN_FRACTION) -> tuple[dict, str, dict]:
-    """Diagnosis of a validated record; returns ``(report, summary, internals)``."""
+                    train_fraction: float = TRAIN_FRACTION, modelled=()) -> tuple[dict, str, dict]:
+    """Diagnosis of a validated record; returns ``(report, summary, internals)``.
+
+    ``modelled``: effects the model already has (a scenario's stage switches); they are fitted with
+    the baseline and are not candidates.
+    """
     if baseline not in ("preisach", "symmetric"):
         raise ValueError(f"baseline must be 'preisach' or 'symmetric', got {baseline!r}")
     n = rec.n
@@ -101,12 +105,13 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
         raise ValueError(f"only {int(held.sum())} held-out samples lie inside the training voltage range; "
                          "the record's excitation must repeat its range after the first 60 %")
     sigma = noise_floor(rec.x)
-    base = fit_model(d, ModelSpec(kind=baseline))
+    modelled = tuple(m for m in modelled if m != "cross_coupling" or rec.y is not None)
+    base = fit_model(d, ModelSpec(kind=baseline, effects=modelled))
     r_base = rec.x - base.prediction
     rms_base = _rms(r_base[held])
     where = localise(rec.t, rec.v, rec.x, r_base, held)
-    avail = list(candidates) if candidates is not None else _available(rec, baseline)
-    current, cur_fit, cur_r = (), base, r_base
+    avail = [c for c in (list(candidates) if candidates is not None else _available(rec, baseline)) if c not in modelled]
+    current, cur_fit, cur_r = modelled, base, r_base
     evaluations: dict[str, dict] = {}
     first_round = True
     for _ in range(MAX_EFFECTS):
@@ -135,7 +140,8 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
         evaluations[best]["significant"] = True
         current, cur_fit, cur_r = current + (best,), fm, r1
     # final parameters of accepted effects come from the final joint fit
-    for c in current:
+    verdict = [c for c in current if c not in modelled]
+    for c in verdict:
         evaluations[c]["params"] = cur_fit.params.get(c, {})
     effects = [evaluations[c] for c in avail if c in evaluations]
     report = {
@@ -146,16 +152,16 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
         "baseline": {"model": "relay Preisach grid (asymmetric)" if baseline == "preisach" else
                      "play operators (symmetric PI)", "rms_gap": rms_base, "unit": "m",
                      "train_rms": _rms(r_base[train]), "noise_floor": sigma,
-                     "travel": float(np.ptp(rec.x))},
+                     "travel": float(np.ptp(rec.x)), "modelled": list(modelled)},
         "where": where,
         "effects": effects,
-        "verdict": list(current),
+        "verdict": verdict,
         "final": {"rms_gap": _rms(cur_r[held]), "heldout_shrink": round(1.0 - _rms(cur_r[held]) / rms_base, 4)
                   if rms_base > 0 else 0.0},
     }
     summary = _summary(report)
     if figure_path is not None:
-        plot_diagnosis(rec, r_base, cur_r, held, figure_path, title=", ".join(current) or "nothing missing")
+        plot_diagnosis(rec, r_base, cur_r, held, figure_path, title=", ".join(verdict) or "nothing missing")
         report["figure"] = str(figure_path)
     return report, summary, {"design": d, "baseline": base, "final": cur_fit, "held": held}
 
@@ -210,13 +216,18 @@ def plot_diagnosis(rec: LoopRecord, r_before, r_after, held, path, *, title="") 
     return path
 
 
-def diagnose_loops(path_or_arrays, *, rng_seed: int = 0, figure_path=None, baseline: str = "preisach") -> tuple[dict, str]:
+def diagnose_loops(path_or_arrays, *, rng_seed: int = 0, figure_path=None, baseline: str = "preisach",
+                   scenario=None) -> tuple[dict, str]:
     """Diagnose a measured record (CSV path, dict of columns or ``(t, v, x[, y])``).
 
+    ``scenario`` (a Scenario or YAML path): effects its stage switches on are already modelled.
     Returns ``(report, summary)``; ``report`` is JSON-serialisable (``diagnosis.json``).
     ``rng_seed`` is recorded for provenance; the diagnosis itself is deterministic.
     """
+    from .scenario_effects import as_scenario, modelled_effects
+
+    modelled = modelled_effects(as_scenario(scenario))
     rec = load_record(path_or_arrays)
-    report, summary, _ = diagnose_record(rec, baseline=baseline, figure_path=figure_path)
+    report, summary, _ = diagnose_record(rec, baseline=baseline, figure_path=figure_path, modelled=modelled)
     report["rng_seed"] = int(rng_seed)
     return report, summary

@@ -1,0 +1,201 @@
+"""Image-data diagnosis: input validation, forward-model pieces, diagnosed scans, CLI, a small validation run."""
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from afmsim.cli import app
+from afmsim.diagnosis import diagnose_images, load_images, validate_image_diagnosis
+from afmsim.diagnosis.image_model import Layout, ZLoop
+from afmsim.diagnosis.image_reference import Surface, parabolic_dilation
+from afmsim.diagnosis.image_validation import image_case_plan, make_image_case
+from afmsim.report.gwy import write_gwy
+from afmsim.samples.heightmap import HeightMap
+
+runner = CliRunner()
+
+
+def _pair(lines=20, pixels=24, seed=0):
+    rng = np.random.default_rng(seed)
+    trace = 1e-7 * rng.standard_normal((lines, pixels))
+    return {"trace": trace, "retrace": trace + 1e-9, "scan_size_m": (10e-6, 8e-6), "line_rate_hz": 2.0}
+
+
+@pytest.fixture(scope="module")
+def z_case():
+    """A grating scanned with a Z loop ten times slower than its scenario says (ki 600 vs 3000 1/s)."""
+    return make_image_case(("z_feedback", 1), np.random.default_rng(5), pixels=40)
+
+
+def test_bad_images_are_refused_with_one_line(tmp_path):
+    good = _pair()
+    cases = {
+        "lack key(s)": {k: v for k, v in good.items() if k != "retrace"},
+        "shapes differ": {**good, "retrace": good["retrace"][:, :-1]},
+        "run of NaN": {**good, "trace": np.where(np.arange(24) < 2, np.nan, good["trace"])},
+        "no finite pixel": {**good, "retrace": np.where(np.arange(20)[:, None] == 3, np.nan, good["retrace"])},
+        "too small": {**good, "trace": good["trace"][:8], "retrace": good["retrace"][:8]},
+        "scan_size_m": {**good, "scan_size_m": (-1e-6, 8e-6)},
+        "line_rate_hz": {**good, "line_rate_hz": 0.0},
+    }
+    for fragment, data in cases.items():
+        with pytest.raises(ValueError) as info:
+            load_images(data)
+        assert fragment in str(info.value) and "\n" not in str(info.value)
+    (tmp_path / "x.txt").write_text("1")
+    with pytest.raises(ValueError, match="must be .npz or .gwy"):
+        load_images(tmp_path / "x.txt")
+    with pytest.raises(ValueError, match="not found"):
+        load_images(tmp_path / "missing.npz")
+    holed = good["trace"].copy()
+    holed[5, 10] = np.nan
+    rec = load_images({**good, "trace": holed})
+    assert rec.filled_pixels == 1 and np.isfinite(rec.trace).all()
+    assert rec.trace[5, 10] == pytest.approx(0.5 * (holed[5, 9] + holed[5, 11]))
+
+
+def test_gwy_channels_and_run_images_npz_load(tmp_path):
+    pair = _pair()
+    maps = {k: HeightMap(pair[k], (10e-6 / 24, 8e-6 / 20), (1e-6, 2e-6)) for k in ("trace", "retrace")}
+    path = write_gwy(tmp_path / "scan.gwy", maps)
+    with pytest.raises(ValueError, match="line rate"):
+        load_images(path)
+    rec = load_images(path, line_rate_hz=3.0)
+    assert np.allclose(rec.trace, pair["trace"]) and np.allclose(rec.scan_size_m, (10e-6, 8e-6))
+    assert np.allclose(rec.scan_offset_m, (1e-6 - 10e-6 / 48, 2e-6 - 8e-6 / 40)) and rec.line_rate_hz == 3.0
+    # the keys `afmsim run` writes into images.npz, with the scenario beside it for the line rate
+    run = tmp_path / "run"
+    run.mkdir()
+    np.savez(run / "images.npz", trace_spi=pair["trace"], retrace_spi=pair["retrace"], trace_none=-pair["trace"],
+             retrace_none=-pair["retrace"], image_pixel_size_m=[10e-6 / 24, 8e-6 / 20], image_origin_m=[1e-6, 2e-6])
+    with pytest.raises(ValueError, match="line rate unknown"):
+        load_images(run / "images.npz")
+    (run / "scenario.yaml").write_text(yaml.safe_dump({"sample": {"kind": "grating"}, "scan": {"line_rate_hz": 1.5}}))
+    rec = load_images(run / "images.npz")
+    assert np.allclose(rec.trace, -pair["trace"]) and rec.line_rate_hz == 1.5 and rec.source.endswith("[none]")
+    assert np.allclose(load_images(run / "images.npz", channel="spi").trace, pair["trace"])
+    with pytest.raises(ValueError, match="available controllers"):
+        load_images(run / "images.npz", channel="diapi")
+
+
+def test_z_loop_lag_and_parachuting():
+    dt, ki, kp, sp = 1e-4, 500.0, 0.1, 20e-9
+    loop = ZLoop(ki, kp, sp)
+    up = np.r_[np.zeros(50), np.full(400, 100e-9)]
+    h, _ = loop.run(up, None, dt)
+    tau = (1 + kp) / ki  # closed-loop time constant while in contact
+    k = 50 + int(round(tau / dt))
+    assert h[k] == pytest.approx(100e-9 * (1 - np.exp(-1) / (1 + kp)), rel=0.05)  # h = s·(1 − e^(−t/τ)/(1 + kp))
+    assert h[-1] == pytest.approx(100e-9, rel=1e-3)
+    down, _ = loop.run(up[::-1].copy(), None, dt)
+    fall = -np.diff(down[402:420]) / dt  # tip off the surface: the integrator falls at ki·setpoint
+    assert np.allclose(fall, ki * sp, rtol=0.02)
+    smooth = np.sin(np.linspace(0, 6, 300)) * 1e-7
+    fast, _ = ZLoop(1e6, kp, sp).run(smooth, None, 1e-4)  # a stiff loop records the surface (interior samples)
+    assert np.max(np.abs(fast - smooth)[1:-1]) < 5e-11
+
+
+def test_parabolic_dilation_composes_and_surface_gradient_is_exact():
+    z = np.zeros((41, 41))
+    z[20, 20] = 1e-6
+    spike = HeightMap(z, (10e-9, 10e-9))
+    one = parabolic_dilation(spike, 50e-9)
+    r2 = ((np.arange(41) - 20) * 10e-9) ** 2
+    expected = np.maximum(1e-6 - (r2[:, None] + r2[None, :]) / (2 * 50e-9), 0.0)
+    assert np.allclose(one.z, expected, atol=1e-12)
+    # paraboloids compose, P_20nm ⊕ P_30nm = P_50nm, to the grid's (dx/2)²·(1/R1 + 1/R2) (x and y each half)
+    assert np.allclose(parabolic_dilation(parabolic_dilation(spike, 20e-9), 30e-9).z, one.z, atol=2.1e-9)
+    rng = np.random.default_rng(1)
+    surf = Surface(HeightMap(rng.standard_normal((9, 11)) * 1e-8, (1e-7, 2e-7), (0.0, 0.0)))
+    x, y = rng.uniform(0.1e-7, 9.9e-7, 50), rng.uniform(0.1e-7, 15.9e-7, 50)
+    s, gx, gy = surf.sample(x, y)
+    eps = 1e-12
+    assert np.allclose((surf.sample(x + eps, y, gradient=False)[0] - s) / eps, gx, rtol=1e-4, atol=1e-4)
+    assert np.allclose((surf.sample(x, y + eps, gradient=False)[0] - s) / eps, gy, rtol=1e-4, atol=1e-4)
+
+
+def test_layout_mirrors_retrace_onto_trace():
+    lay = Layout((3, 5), (5e-6, 3e-6), (1e-6, 0.0), 2.0, 0.5, subsamples=2)
+    rt = lay.retrace
+    assert rt.sum() == lay.n // 2 and np.allclose(lay.u[lay.mirror[rt]], lay.u[rt])
+    assert np.all(lay.line[lay.mirror] == lay.line)
+    trace, retrace = lay.images(lay.u)
+    assert np.allclose(trace, lay.geometry.pixel_centres_x) and np.allclose(retrace, trace)
+    assert np.all(np.diff(lay.t) > 0) and lay.t[0] == 0.0
+
+
+def test_diagnosis_finds_a_slow_z_loop(z_case, tmp_path):
+    report, summary = diagnose_images(z_case["measured"], scenario=z_case["scenario"], figure_path=tmp_path / "d.png")
+    json.dumps(report)
+    assert report["images"]["reference"] == "scenario" and report["baseline"]["unit"] == "m"
+    assert {"direction", "axis", "features", "position", "time"} <= set(report["where"])
+    assert {e["name"] for e in report["effects"]} == {"creep", "drift", "dynamics", "cross_coupling", "tip", "z_feedback"}
+    for e in report["effects"]:
+        assert {"name", "params", "heldout_shrink", "significant"} <= set(e)
+    assert report["verdict"][:1] == ["z_feedback"]
+    ki = next(e for e in report["effects"] if e["name"] == "z_feedback")["params"]["ki_per_s"]
+    assert ki == pytest.approx(600.0, rel=0.25)
+    assert report["final"]["heldout_shrink"] > 0.5 and "Verdict" in summary
+    assert (tmp_path / "d.png").stat().st_size > 1000
+
+
+def test_trace_reference_says_what_it_cannot_see(z_case):
+    report, _ = diagnose_images(z_case["measured"])
+    assert report["images"]["reference"] == "trace"
+    assert set(report["not_identifiable"]) == {"drift", "cross_coupling", "tip"}
+    assert {e["name"] for e in report["effects"]} <= {"creep", "dynamics", "z_feedback"}
+    assert report["baseline"]["rms_gap"] > 0
+
+
+def test_cli_diagnoses_images_and_refuses_bad_ones(z_case, tmp_path):
+    scenario = tmp_path / "scenario.yaml"
+    scenario.write_text(yaml.safe_dump(z_case["scenario"].model_dump(mode="json")))
+    good = tmp_path / "scan.npz"
+    np.savez(good, **{k: np.asarray(v) for k, v in z_case["measured"].items()})
+    out = tmp_path / "diag"
+    result = runner.invoke(app, ["diagnose", "--measured", str(good), "--scenario", str(scenario), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    report = json.loads((out / "diagnosis.json").read_text())
+    assert report["verdict"][:1] == ["z_feedback"] and "Verdict" in result.output
+    assert {"diagnosis.png", "summary.txt", "manifest.json"} <= {p.name for p in out.iterdir()}
+    bad = tmp_path / "bad.npz"
+    arrays = {k: np.asarray(v) for k, v in z_case["measured"].items()}
+    np.savez(bad, **{**arrays, "retrace": arrays["retrace"][:-3]})
+    result = runner.invoke(app, ["diagnose", "--measured", str(bad), "--out", str(tmp_path / "nope")])
+    assert result.exit_code == 2 and "shapes differ" in result.output and not (tmp_path / "nope").exists()
+    assert len(result.output.strip().splitlines()) == 1
+    result = runner.invoke(app, ["validate-diagnosis", "--kind", "pictures"])
+    assert result.exit_code == 2 and "--kind" in result.output
+
+
+def test_small_image_validation():
+    plan = image_case_plan(32)
+    assert len(plan) == 32 and sum(k == "null" for k, _ in plan) >= 6 and sum(k == "pair" for k, _ in plan) == 6
+    scores = validate_image_diagnosis(n_cases=4, seed=11, pixels=40)
+    assert scores["n_cases"] == 4 and scores["null_cases"] >= 1
+    assert scores["top1_accuracy"] >= 0.75 and scores["false_alarm_rate"] == 0.0
+    assert scores["param_within_25pct"] is None or scores["param_within_25pct"] >= 0.5
+
+
+def test_loop_diagnosis_takes_modelled_effects_from_the_scenario(tmp_path):
+    t = np.linspace(0.0, 4.0, 2001)
+    v = 5 - 4 * np.cos(np.pi * t)  # a 0.5 Hz loop with a lagging extra term
+    csv = tmp_path / "loop.csv"
+    rows = np.column_stack([t, v, 1.1e-6 * v + 0.2e-6 * np.sin(np.pi * t)])
+    csv.write_text("t_s,v_V,x_m\n" + "\n".join(",".join(f"{a:.9g}" for a in r) for r in rows) + "\n")
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(yaml.safe_dump({"sample": {"kind": "grating"},
+                                        "stage": {"creep": True, "drift": False, "dynamics": False, "cross_coupling": 0.0}}))
+    out = tmp_path / "diag"
+    result = runner.invoke(app, ["diagnose", "--measured", str(csv), "--scenario", str(scenario), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    report = json.loads((out / "diagnosis.json").read_text())
+    assert report["baseline"]["modelled"] == ["creep"] and "creep" not in report["verdict"]
+    assert "creep" not in {e["name"] for e in report["effects"]} and {"drift", "dynamics"} <= {e["name"] for e in report["effects"]}
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("sample: {kind: grating}\nstage: {creep: maybe}\n")
+    result = runner.invoke(app, ["diagnose", "--measured", str(csv), "--scenario", str(bad), "--out", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "stage.creep" in result.output and not (tmp_path / "x").exists()
