@@ -183,7 +183,8 @@ class MicroLensArray:
         top = np.vstack([caps, flat])
         # merge coincident points (touching rims when pitch == diameter)
         key = np.round(top[:, :2] / (1e-4 * h)).astype(np.int64)
-        _, keep = np.unique(key, axis=0, return_index=True)
+        key -= key.min(0)
+        _, keep = np.unique(key[:, 0] * (key[:, 1].max() + 1) + key[:, 1], return_index=True)  # one int64 per (x, y)
         return top[np.sort(keep)]
 
     def mesh(self) -> trimesh.Trimesh:
@@ -201,11 +202,11 @@ class MicroLensArray:
 
         # directed boundary edges (i → j, counter-clockwise around the top)
         e = np.vstack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-        key = np.sort(e, axis=1)
-        _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-        bnd = e[cnt[inv.ravel()] == 1]
-
         n_top = len(top)
+        undirected = np.minimum(e[:, 0], e[:, 1]) * n_top + np.maximum(e[:, 0], e[:, 1])  # one int64 per edge
+        _, inv, cnt = np.unique(undirected, return_inverse=True, return_counts=True)
+        bnd = e[cnt[inv] == 1]
+
         bverts = np.unique(bnd)
         bot_index = np.full(n_top, -1, np.int64)
         bot_index[bverts] = n_top + np.arange(len(bverts))
