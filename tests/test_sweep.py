@@ -1,7 +1,7 @@
 """Sweeps: expansion is reproducible, Dask results equal serial runs, resume recomputes only what is missing."""
 
 import json
-import logging
+import os
 import shutil
 
 import numpy as np
@@ -11,7 +11,8 @@ from typer.testing import CliRunner
 
 from afmsim.cli import app
 from afmsim.experiment import run_scenario
-from afmsim.sweep import MAX_RUNS, SweepError, SweepRunError, load_sweep, parse_sweep, result_row, run_sweep
+from afmsim.sweep import (MAX_RUNS, SweepError, SweepRunError, load_sweep, local_cluster, parse_sweep, result_row,
+                          run_sweep)
 
 runner = CliRunner()
 
@@ -23,13 +24,33 @@ SWEEP = {"name": "tiny-grid", "base": {**TINY, "experiments": 2},
 
 
 @pytest.fixture(scope="module")
-def scheduler():
-    """A real two-process Dask cluster shared by the tests of this module."""
-    from dask.distributed import LocalCluster
+def cluster():
+    """A real two-process Dask cluster, built as ``afmsim sweep`` builds its default one."""
+    with local_cluster(2) as local:
+        yield local
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                      silence_logs=logging.ERROR) as cluster:
-        yield cluster.scheduler_address
+
+@pytest.fixture(scope="module")
+def scheduler(cluster):
+    return cluster.scheduler_address
+
+
+def _worker_environment():
+    return {name: os.environ.get(name) for name in ("MALLOC_TRIM_THRESHOLD_", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+
+
+def test_default_workers_keep_glibc_adaptive_mmap_and_one_thread(cluster):
+    """Dask's MALLOC_TRIM_THRESHOLD_ (which costs the runs ~30 % in page faults) is not passed on; the thread caps are."""
+    from dask.distributed import Client
+
+    with Client(cluster) as client:
+        environments = client.run(_worker_environment)
+    assert len(environments) == 2
+    expected = {"MALLOC_TRIM_THRESHOLD_": os.environ.get("MALLOC_TRIM_THRESHOLD_"),  # inherited, not Dask's 65536
+                "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"),
+                "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1")}
+    for environment in environments.values():
+        assert environment == expected
 
 
 @pytest.fixture(scope="module")

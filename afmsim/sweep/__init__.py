@@ -8,8 +8,8 @@ results table and the summary figure, ``progress`` draws the terminal bar.
     table = run_sweep(load_sweep("scenarios/sweep-scan-size.yaml"), "outputs/my-sweep")
 """
 
-from afmsim.sweep.execute import SweepRunError, default_workers, result_row, run_one, run_sweep
+from afmsim.sweep.execute import SweepRunError, default_workers, local_cluster, result_row, run_one, run_sweep
 from afmsim.sweep.spec import MAX_RUNS, Run, Sweep, SweepError, load_sweep, parse_sweep
 
-__all__ = ["MAX_RUNS", "Run", "Sweep", "SweepError", "SweepRunError", "default_workers", "load_sweep", "parse_sweep",
+__all__ = ["MAX_RUNS", "Run", "Sweep", "SweepError", "SweepRunError", "default_workers", "load_sweep", "local_cluster", "parse_sweep",
            "result_row", "run_one", "run_sweep"]

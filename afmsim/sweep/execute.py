@@ -34,7 +34,7 @@ from afmsim.sweep.plot import summary_figure
 from afmsim.sweep.spec import Run, Sweep, SweepError
 from afmsim.sweep.tables import read_rows, replace_atomically, write_tables
 
-__all__ = ["SweepRunError", "run_sweep", "run_one", "result_row", "default_workers"]
+__all__ = ["SweepRunError", "run_sweep", "run_one", "result_row", "default_workers", "local_cluster"]
 
 
 class SweepRunError(RuntimeError):
@@ -74,16 +74,34 @@ def run_one(run: Run) -> dict:
 @contextmanager
 def _client(scheduler, workers):
     """A ``dask.distributed.Client``: on ``scheduler`` if given, else on a fresh local cluster."""
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
 
     if scheduler is not None:
         with Client(scheduler, timeout="10s") as client:
             yield client, str(scheduler)
         return
     n = workers or default_workers()
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    with local_cluster(n) as cluster, Client(cluster) as client:
         yield client, f"LocalCluster({n} worker processes × 1 thread)"
+
+
+def local_cluster(n_workers: int):
+    """The default cluster: ``n_workers`` processes of one thread each, on this machine.
+
+    Dask's nannies start workers with ``MALLOC_TRIM_THRESHOLD_=65536`` to return freed memory to
+    the system early. Setting that variable also switches off glibc's adaptive mmap threshold, so
+    every array above 128 KiB is a fresh ``mmap`` whose pages fault in again on first touch; a
+    run's many short-lived 0.1–10 MB arrays then cost ~7× the page faults and ~30 % of its wall
+    time (measured on the micro-lens runs of ``benchmarks/bench_sweep.py``). The variable is
+    left unset for afmsim's own workers (the thread caps ``OMP_NUM_THREADS=1`` etc. stay). An
+    existing cluster given by address keeps its own settings.
+    """
+    import dask
+    from dask.distributed import LocalCluster
+
+    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+        return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                            silence_logs=logging.ERROR)
 
 
 def _sweep_record(sweep: Sweep) -> dict:
