@@ -16,8 +16,11 @@ jointly with the effect):
   training span; alternated twice with the hysteresis refit (bilinear). Reported as γ, the
   normalised log-slope of its step response per decade between ``t1 = max(0.1 s, 10 dt)`` and
   ``t2 = T_train/4``.
-* ``dynamics`` — first-order lag ``1/(τ s + 1)`` (ZOH) on the hysteresis(+creep) output; τ by a
-  grid search on the training error, weights refitted.
+* ``dynamics`` — first-order lag ``1/(τ s + 1)`` on the hysteresis(+creep) output, discretised
+  either by Tustin (the record is a sampled smooth signal) or by a zero-order hold (half a sample
+  more delay: what a lag shorter than one sample looks like after a voltage step); τ and the
+  discretisation by a grid search on the training error, weights refitted. Reported as the
+  low-frequency delay (comparable with a plant's 1/ω_a + 2ζ/ω_0) and the discretisation.
 * ``cross_coupling`` — ``+ c·y_m`` (only with a ``y_m`` column).
 * ``asymmetry`` — (only for the symmetric baseline) ``+ q2·v² + q3·v³ + Σ e_k·v·P_k(v)``: an even
   mean curve and loop widths that vary along the travel (2 + N_PLAY free terms).
@@ -33,7 +36,7 @@ from scipy.optimize import nnls
 from scipy.linalg import solve_triangular
 from scipy.signal import lfilter, lfilter_zi
 
-__all__ = ["relay_features", "play_features", "ModelSpec", "FittedModel", "fit_model", "lag_filter",
+__all__ = ["relay_features", "play_features", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
            "creep_gamma_from_bank", "CANDIDATES"]
 
 CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "asymmetry")
@@ -83,9 +86,30 @@ def play_features(v, v_lo, v_hi, n_play=N_PLAY) -> np.ndarray:
 
 
 def lag_filter(tau: float, dt: float):
-    """Zero-order-hold discretisation of 1/(τs + 1): y[k] = p·y[k−1] + (1 − p)·u[k−1], p = e^{−dt/τ}."""
+    """Zero-order-hold discretisation of 1/(τs + 1): y[k] = p·y[k−1] + (1 − p)·u[k−1], p = e^{−dt/τ}.
+
+    Its delay at low frequency is τ + dt/2 (the hold adds half a sample): right for the creep
+    bank's long τ, not for a lag of the order of dt (see :func:`dynamics_lag_filter`)."""
     p = float(np.exp(-dt / tau))
     return np.array([0.0, 1.0 - p]), np.array([1.0, -p])
+
+
+def dynamics_lag_filter(tau: float, dt: float):
+    """Bilinear (Tustin) discretisation of 1/(τs + 1), the ``dynamics`` candidate.
+
+    The recorded voltage is a sampled smooth signal, not a held one; Tustin keeps the
+    low-frequency delay at exactly τ [s] for any τ/dt, so the fitted τ compares with a plant's
+    low-frequency lag (amplifier pole + resonance: 1/ω_a + 2ζ/ω_0). ``b, a`` for ``lfilter``."""
+    k = 2.0 * tau / dt
+    return np.array([1.0, 1.0]) / (1.0 + k), np.array([1.0, (1.0 - k) / (1.0 + k)])
+
+
+LAG_DISCRETISATIONS = {"tustin": dynamics_lag_filter, "zoh": lag_filter}
+
+
+def lag_delay(discretisation: str, tau: float, dt: float) -> float:
+    """Low-frequency delay [s] of the discretised lag: τ (Tustin) or τ + dt/2 (zero-order hold)."""
+    return float(tau + (0.5 * dt if discretisation == "zoh" else 0.0))
 
 
 def _filt(b, a, cols):
@@ -188,7 +212,7 @@ def _solve(cols_free, cols_pos, target, mask):
     return w[:nf], w[nf:]
 
 
-def fit_model(d: Design, spec: ModelSpec, tau_dyn: float | None = None) -> FittedModel:
+def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
     """Fit ``spec`` on the training mask of ``d``; the prediction covers the whole record."""
     eff = set(spec.effects)
     kind = "preisach" if spec.kind == "preisach" else "symmetric"
@@ -213,12 +237,13 @@ def fit_model(d: Design, spec: ModelSpec, tau_dyn: float | None = None) -> Fitte
     params: dict = {}
     n_params = hyst_cols.shape[1] + extra.shape[1]
 
-    def run(lag_tau, creep_basis=None):
+    def run(lag, creep_basis=None):
         cols = hyst_cols
         if creep_basis is not None:
             cols = np.hstack([hyst_cols, creep_basis])
-        if lag_tau is not None:
-            b, a = lag_filter(lag_tau, d.dt)
+        if lag is not None:
+            discretisation, tau = lag
+            b, a = LAG_DISCRETISATIONS[discretisation](tau, d.dt)
             cols = _filt(b, a, cols)
         free = np.hstack([cols[:, :n_free_h], extra])
         pos = cols[:, n_free_h:]
@@ -230,39 +255,38 @@ def fit_model(d: Design, spec: ModelSpec, tau_dyn: float | None = None) -> Fitte
     def creep_cols(hpart, taus):
         return np.column_stack([_filt(*lag_filter(tau, d.dt), hpart[:, None])[:, 0] - hpart for tau in taus])
 
-    def fit_with(lag_tau):
-        pred, wf, wp, hpart = run(lag_tau)
+    def fit_with(lag):
+        pred, wf, wp, hpart = run(lag)
         creep = None
         if "creep" in eff:
             taus = creep_taus(d.dt, d.span_train)
             for _ in range(3):
                 basis = creep_cols(hpart, taus)
-                pred, wf, wp, hpart_new = run(lag_tau, basis)
+                pred, wf, wp, hpart_new = run(lag, basis)
                 c = wp[hf.shape[1]:]
                 hpart = hpart_new
             creep = (c, taus)
         return pred, wf, wp, hpart, creep
 
+    lag = None
     if "dynamics" in eff:
-        if tau_dyn is None:
-            grid = np.geomspace(0.3 * d.dt, max(0.02, 3 * d.dt), 10)
-            best = None
-            for tau in grid:
-                pred = fit_with(tau)[0]
-                err = float(np.mean((pred - d.x)[d.train] ** 2))
-                if best is None or err < best[0]:
-                    best = (err, tau)
+        def train_error(candidate):
+            return float(np.mean((fit_with(candidate)[0] - d.x)[d.train] ** 2))
+
+        grid = np.geomspace(0.3 * d.dt, max(0.02, 3 * d.dt), 10)
+        best = None
+        for discretisation in LAG_DISCRETISATIONS:
+            errors = [train_error((discretisation, tau)) for tau in grid]
+            k = int(np.argmin(errors))
             # one refinement around the best grid point
-            k = int(np.argmin(np.abs(grid - best[1])))
             for tau in np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)], 5):
-                pred = fit_with(tau)[0]
-                err = float(np.mean((pred - d.x)[d.train] ** 2))
-                if err < best[0]:
-                    best = (err, tau)
-            tau_dyn = best[1]
-        params["dynamics"] = {"lag_time_constant_s": float(tau_dyn)}
-        n_params += 1
-    pred, wf, wp, hpart, creep = fit_with(tau_dyn if "dynamics" in eff else None)
+                error = errors[k] if tau == grid[k] else train_error((discretisation, tau))
+                if best is None or error < best[0]:
+                    best = (error, (discretisation, float(tau)))
+        lag = best[1]
+        params["dynamics"] = {"lag_time_constant_s": lag_delay(*lag, d.dt), "discretisation": lag[0]}
+        n_params += 2  # τ and the discretisation
+    pred, wf, wp, hpart, creep = fit_with(lag)
     for k, name in enumerate(names):
         val = float(wf[n_free_h + k])
         if name == "drift":
