@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .fitting import branch_signs, check_fit_inputs, operator_widths, solve_weights
-from .operators import osp
+from .operators import osp, osp_weighted
 
 __all__ = ["IIAPI", "invert_pi", "monotone_weights"]
 
@@ -154,14 +154,14 @@ class IIAPI:
     def forward(self, voltage) -> np.ndarray:
         """Step-1 model: displacement (m) for a voltage trajectory (V), from the eq. (4) state."""
         v = np.asarray(voltage, dtype=np.float64)
-        H = osp(v - self.v_offset, self.widths, self.h0)
-        return np.where(branch_signs(v) > 0, H @ self.forward_trace, H @ self.forward_retrace) + self.bias
+        weights = np.vstack([self.forward_trace, self.forward_retrace])  # rising / falling voltage
+        return osp_weighted(v - self.v_offset, self.widths, weights, self.h0) + self.bias
 
     def predict(self, displacement) -> np.ndarray:
         """Feedforward voltage (V) for a displacement trajectory (m), from the eq. (4) state."""
         d = np.asarray(displacement, dtype=np.float64)
-        up = osp(d - self._d_ref(self.forward_trace), self.widths_inv_trace, 0.0) @ self.weights_inv_trace
-        down = osp(d - self._d_ref(self.forward_retrace), self.widths_inv_retrace, 0.0) @ self.weights_inv_retrace
+        up = osp_weighted(d - self._d_ref(self.forward_trace), self.widths_inv_trace, self.weights_inv_trace)
+        down = osp_weighted(d - self._d_ref(self.forward_retrace), self.widths_inv_retrace, self.weights_inv_retrace)
         return self.v_offset + self.h0 + np.where(branch_signs(d) > 0, up, down)
 
     @property

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .fitting import check_fit_inputs, operator_widths, solve_weights
-from .operators import osp
+from .operators import osp, osp_weighted
 
 __all__ = ["SPI"]
 
@@ -60,7 +60,8 @@ class SPI:
 
     def predict(self, displacement) -> np.ndarray:
         """Feedforward voltage (V) for a displacement trajectory (m), from the eq. (4) state."""
-        return osp(np.asarray(displacement, dtype=np.float64) - self.offset, self.widths, self.h0) @ self.weights + self.bias
+        d = np.asarray(displacement, dtype=np.float64)
+        return osp_weighted(d - self.offset, self.widths, self.weights, self.h0) + self.bias
 
     def params(self) -> dict:
         """JSON-ready parameters (SI units)."""
