@@ -192,6 +192,8 @@ def _print_summary(metrics: dict) -> None:
                    f"{scores['shift_x_m']['mean'] * 1e6:>13.3f}")
     if "e_D" in metrics:
         typer.echo(f"e_D (SPI → DIAPI, eq. 9): {metrics['e_D']:.1%}")
+    for note in metrics.get("notes", []):
+        typer.echo(f"note: {note}")
 
 
 @app.command()

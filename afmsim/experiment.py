@@ -128,6 +128,7 @@ class ScenarioResult:
     mesh: object
     images: dict = field(default_factory=dict)      # controller -> ScanImages (experiment 1)
     scores: dict = field(default_factory=dict)      # controller -> metric -> list over experiments
+    notes: list = field(default_factory=list)       # scores that could not be measured, and why
 
     def metrics(self) -> dict:
         """The ``metrics.json`` content: mean/std/per-experiment of every score, and e_D."""
@@ -139,11 +140,15 @@ class ScenarioResult:
         if "ideal" in controllers:
             floor = controllers["ideal"]["nsl2"]["mean"]
             out["nsl2_over_ideal"] = {n: c["nsl2"]["mean"] / floor if floor > 0 else None for n, c in controllers.items()}
+        if self.notes:
+            out["notes"] = list(self.notes)
         return out
 
 
-def _score(images: ScanImages, kind: str) -> dict:
+def _score(images: ScanImages, kind: str) -> tuple[dict, list[str]]:
+    """Scores of one trace/retrace pair, and notes on scores that could not be measured."""
     trace, retrace = images.trace, images.retrace
+    notes = []
     shift_x, shift_y = image_shift(trace.z, retrace.z, trace.pixel_size)
     scores = {"nsl2": nsl2_binarized(trace.z, retrace.z), "shift_x_m": shift_x, "shift_y_m": shift_y}
     if kind == "microlens":
@@ -152,9 +157,14 @@ def _score(images: ScanImages, kind: str) -> dict:
             scores["lens_centre_shift_x_m"] = centre_shift
     if kind == "grating":
         for label, image in (("trace", trace), ("retrace", retrace)):
-            left, right = left_right_pitch(image.z, image.pixel_size)
+            try:
+                left, right = left_right_pitch(image.z, image.pixel_size)
+            except ValueError as error:  # a half field without a complete period: the other scores stand
+                notes.append(f"{label}_pitch_left_m/_right_m not measured: {error} (a scan about 2.5 grating "
+                             f"periods wide or more has a complete period in each half)")
+                continue
             scores[f"{label}_pitch_left_m"], scores[f"{label}_pitch_right_m"] = left, right
-    return scores
+    return scores, notes
 
 
 def _central_lens_shift(trace: HeightMap, retrace: HeightMap):
@@ -198,8 +208,10 @@ def run_scenario(scenario: Scenario, progress=None) -> ScenarioResult:
             images = scan_frame(dilated, trajectory, plant, *controllers, z_stage, z_feedback, scan_rng)
             if k == 0:
                 result.images[name] = images
-            for metric, value in _score(images, scenario.sample.kind).items():
+            scores, notes = _score(images, scenario.sample.kind)
+            for metric, value in scores.items():
                 result.scores.setdefault(name, {}).setdefault(metric, []).append(float(value))
+            result.notes.extend(note for note in notes if note not in result.notes)
             step += 1
             if progress is not None:
                 progress(step, total, f"experiment {k + 1}/{scenario.experiments}: {name}")

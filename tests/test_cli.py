@@ -139,3 +139,20 @@ def test_diagnose_writes_report_and_rejects_bad_records(tmp_path):
     assert result.exit_code == 2 and "x_m" in result.output and not (tmp_path / "nope").exists()
     result = runner.invoke(app, ["diagnose", "--measured", str(tmp_path / "scan.npz"), "--out", str(tmp_path / "no")])
     assert result.exit_code == 2 and "image file not found" in result.output and not (tmp_path / "no").exists()
+
+
+def test_a_grating_scan_too_narrow_for_the_pitch_scores_still_runs(tmp_path):
+    """6 µm of a 5 µm-period grating: no complete period in a half field. NSL2 and shift are scored,
+    the pitch scores are left out with a note naming them, exit 0."""
+    scenario = {"name": "narrow-grating", "seed": 3, "experiments": 1, "sample": {"kind": "grating"},
+                "scan": {"size_um": [6.0, 6.0], "offset_um": [2.0, 2.0], "pixels": 32, "lines": 16},
+                "controllers": ["none"]}
+    path = tmp_path / "narrow.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    result = runner.invoke(app, ["run", str(path), "--out", str(tmp_path / "run"), "--quiet"])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    scores = metrics["controllers"]["none"]
+    assert {"nsl2", "shift_x_m"} <= set(scores) and not any("pitch" in name for name in scores)
+    assert any(note.startswith("trace_pitch_left_m") and "no complete period" in note for note in metrics["notes"])
+    assert "note: trace_pitch_left_m" in result.output
