@@ -144,12 +144,27 @@ class CAPI:
         return self.poly.size - 1
 
     def predict(self, displacement) -> np.ndarray:
-        """Feedforward voltage (V) for a displacement trajectory (m), from the eq. (4) state."""
+        """Feedforward voltage (V) for a displacement trajectory (m), from the eq. (4) state.
+
+        The same sum as the fit's design matrix times the weights, term by term, so no
+        (M, N·K) design matrix is built for a long trajectory.
+        """
         d = np.asarray(displacement, dtype=np.float64)
-        design = self._design(d, self.widths, self.offset, self.d_mid, self.half_span, self.h0,
-                              self.degree, self.poly_degree)
-        w = np.concatenate([self.weights, [self.poly[0]], self.curvature.T.ravel(), self.poly[2:], self.cross])
-        return design @ w
+        x = d - self.offset
+        H = osp(x, self.widths, self.h0)
+        voltage = H @ self.weights + self.poly[0]
+        lag = x[:, None] - H[:, 1:]
+        r = self.widths[1:]
+        scaled = lag / r
+        power = scaled
+        for k in range(2, self.degree + 1):
+            power = power * scaled
+            voltage += power @ (r * self.curvature[:, k - 2])
+        u = (d - self.d_mid) / self.half_span
+        for k in range(2, self.poly_degree + 1):
+            voltage += self.poly[k] * u**k
+        voltage += u * (lag @ self.cross)
+        return voltage
 
     def params(self) -> dict:
         """JSON-ready parameters (SI units)."""
