@@ -40,6 +40,43 @@ def _coarse_shift(trace: np.ndarray, retrace: np.ndarray, upsample_factor: int) 
     return np.asarray(shift, dtype=np.float64)[::-1]  # (s_x, s_y)
 
 
+def _cubic_taps(f: float) -> tuple[np.ndarray, np.ndarray]:
+    """Cubic B-spline weights of the 4 coefficients around a point ``f`` ∈ [0, 1) past a knot,
+    and their derivatives (the interpolant's slope per unit ``f``)."""
+    g = 1.0 - f
+    taps = np.array([g**3, 3 * f**3 - 6 * f**2 + 4, -3 * f**3 + 3 * f**2 + 3 * f + 1, f**3]) / 6
+    slopes = np.array([-(g**2), 3 * f**2 - 4 * f, -3 * f**2 + 2 * f + 1, f**2]) / 2
+    return taps, slopes
+
+
+def _shifted_taps(coeffs: np.ndarray, offset: float, axis: int):
+    """The 4 copies of ``coeffs`` that the cubic spline combines at ``index + offset`` along
+    ``axis`` (edge-clamped), and the taps and slopes that combine them."""
+    whole = int(np.floor(offset))
+    n = coeffs.shape[axis]
+    copies = [np.take(coeffs, np.clip(np.arange(n) + whole - 1 + k, 0, n - 1), axis=axis) for k in range(4)]
+    return copies, *_cubic_taps(offset - whole)
+
+
+def _translated_with_gradient(coeffs: np.ndarray, sx: float, sy: float):
+    """The cubic-spline interpolant of ``coeffs`` at every pixel moved by (−sx, −sy), and its exact
+    x and y derivatives there (per pixel).
+
+    A translation samples every pixel at the same sub-pixel offset, so the tensor-product spline
+    reduces to two 4-tap passes (x, then y) with fixed weights — equal to
+    ``ndimage.map_coordinates(coeffs, ..., order=3, prefilter=False)`` inside the image.
+    """
+    columns, taps_x, slopes_x = _shifted_taps(coeffs, -sx, axis=1)
+    along_x = sum(w * c for w, c in zip(taps_x, columns))
+    slope_x = sum(w * c for w, c in zip(slopes_x, columns))
+    rows, taps_y, slopes_y = _shifted_taps(along_x, -sy, axis=0)
+    value = sum(w * r for w, r in zip(taps_y, rows))
+    dy = sum(w * r for w, r in zip(slopes_y, rows))
+    rows_dx, _, _ = _shifted_taps(slope_x, -sy, axis=0)
+    dx = sum(w * r for w, r in zip(taps_y, rows_dx))
+    return value, dx, dy
+
+
 def _refine_shift(trace: np.ndarray, retrace: np.ndarray, s0: np.ndarray,
                   max_iter: int = 30, margin: float = 2.0, tol: float = 1e-5):
     """Gauss–Newton on  Σ (retrace(p) − trace(p − s) − c)²  over the valid overlap."""
@@ -48,10 +85,6 @@ def _refine_shift(trace: np.ndarray, retrace: np.ndarray, s0: np.ndarray,
     yy, xx = np.mgrid[0:ny, 0:nx].astype(np.float64)
     s = s0.astype(np.float64).copy()
     c = float(np.mean(retrace) - np.mean(trace))
-    h = 1e-3
-
-    def sample(cy, cx):
-        return ndimage.map_coordinates(coeffs, np.vstack([cy, cx]), order=3, prefilter=False)
 
     for _ in range(max_iter):
         X = xx - s[0]
@@ -59,10 +92,7 @@ def _refine_shift(trace: np.ndarray, retrace: np.ndarray, s0: np.ndarray,
         m = (X >= margin) & (X <= nx - 1 - margin) & (Y >= margin) & (Y <= ny - 1 - margin)
         if m.sum() < 16:
             return None
-        cx, cy = X[m], Y[m]
-        t = sample(cy, cx)
-        tx = (sample(cy, cx + h) - sample(cy, cx - h)) / (2 * h)
-        ty = (sample(cy + h, cx) - sample(cy - h, cx)) / (2 * h)
+        t, tx, ty = (a[m] for a in _translated_with_gradient(coeffs, s[0], s[1]))
         r = retrace[m] - t - c
         J = np.column_stack([-tx, -ty, np.ones_like(tx)])  # ∂(model)/∂(s_x, s_y, c)
         step, *_ = np.linalg.lstsq(J, r, rcond=None)
