@@ -15,10 +15,12 @@ neighbours.
 Mesh construction: each cap is meshed with concentric rings of vertices placed *on the sphere*
 (equal polar-angle steps, ring vertex counts ∝ circumference, so edges are ≈ ``edge_length``
 long), the rim ring lies exactly on the circle ρ = a at z = 0, and a guard ring at base height
-just outside it keeps flat triangles off the cap. The flat base gets a coarse point grid. All top
-points are Delaunay-triangulated in xy (a height field: every vertex holds its exact surface
-height), the triangulation's boundary edges are extruded down to the slab bottom (side walls),
-and the bottom is a fan from its centre — one closed, consistently wound (watertight) mesh.
+just outside it keeps flat triangles off the cap. The flat base gets a coarse point grid. The top
+is a height field (every vertex holds its exact surface height) triangulated in xy: one cap is
+Delaunay-triangulated and translated to every lens (all caps are alike), the flat part is the
+Delaunay triangulation of the rims, guard rings and grid less the triangles inside a rim, and the
+two share every rim edge. The top's boundary edges are extruded down to the slab bottom (side
+walls), and the bottom is a fan from its centre — one closed, consistently wound (watertight) mesh.
 The faceting error of an inscribed triangle of circumradius r is ≈ r² / (2R) (≈ 1 nm for the
 default 150 nm edges and R = 5 µm); :meth:`MicroLensArray.max_facet_error` gives the bound used
 by the tests.
@@ -31,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
-from scipy.spatial import Delaunay
+from scipy.spatial import Delaunay, cKDTree
 
 from .heightmap import HeightMap
 from .raycast import mesh_to_heightmap
@@ -49,6 +51,22 @@ __all__ = [
 DEFAULT_MESH_PATH = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
                                  "samples", "microlens_array.ply")
 DEFAULT_MESH_UNIT = 1e-6
+
+
+def _counter_clockwise(faces: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """``faces`` less the degenerate (collinear) ones, each wound counter-clockwise in ``xy``
+    (normals up); ``xy`` in units of the edge length so the area threshold is scale-free."""
+    a, b, c = (xy[faces[:, k]] for k in range(3))
+    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    keep = np.abs(area2) > 1e-9
+    faces, flip = faces[keep].copy(), area2[keep] < 0
+    faces[flip] = faces[flip][:, [0, 2, 1]]
+    return faces
+
+
+def _distance_to_nearest(points: np.ndarray, centers: np.ndarray) -> np.ndarray:
+    """Distance [m] from each (x, y) point to the nearest lens centre."""
+    return cKDTree(centers).query(points)[0]
 
 
 @dataclass(frozen=True)
@@ -140,65 +158,98 @@ class MicroLensArray:
         return z
 
     # ------------------------------------------------------------------ mesh
-    def _top_points(self):
+    def _cap_template(self):
+        """One cap centred at the origin: vertices (apex, rings, rim ring last; metres), its
+        triangles (counter-clockwise in xy) and the rim vertex count.
+
+        Every lens is a translated copy, so the cap is triangulated once. Ring phases are drawn
+        from a fixed generator so the mesh is reproducible.
+        """
         a, R, s, h = self.diameter / 2, self.radius_of_curvature, self.sag, self.edge_length
-        centers = self.lens_centers()
         theta_max = np.arcsin(min(1.0, a / R))
         n_rings = max(2, int(np.ceil(R * theta_max / h)))
-        rng = np.random.default_rng(0)
-        pts, cap_flags = [], []
         n_rim = max(12, int(np.ceil(2 * np.pi * a / h)))
-        guard_r = a + 0.5 * h
-        for cx, cy in centers:
-            pts.append([[cx, cy, s]])
-            for k in range(1, n_rings + 1):
-                th = k * theta_max / n_rings
-                rho = a if k == n_rings else R * np.sin(th)
-                z = 0.0 if k == n_rings else R * np.cos(th) - (R - s)
-                m = n_rim if k == n_rings else max(6, int(np.ceil(2 * np.pi * rho / h)))
-                phi = 2 * np.pi * (np.arange(m) + rng.uniform()) / m
-                pts.append(np.column_stack([cx + rho * np.cos(phi), cy + rho * np.sin(phi), np.full(m, z)]))
-            m = max(12, int(np.ceil(2 * np.pi * guard_r / h)))
-            phi = 2 * np.pi * (np.arange(m) + 0.5) / m
-            g = np.column_stack([cx + guard_r * np.cos(phi), cy + guard_r * np.sin(phi), np.zeros(m)])
-            d = np.sqrt(((g[:, None, :2] - centers[None]) ** 2).sum(-1)).min(1)
-            pts.append(g[d > a + 1e-3 * h])  # drop guard points inside a touching neighbour
-        caps = np.vstack(pts)
+        rng = np.random.default_rng(0)
+        pts = [np.array([[0.0, 0.0, s]])]
+        for k in range(1, n_rings + 1):
+            th = k * theta_max / n_rings
+            rho = a if k == n_rings else R * np.sin(th)
+            z = 0.0 if k == n_rings else R * np.cos(th) - (R - s)
+            m = n_rim if k == n_rings else max(6, int(np.ceil(2 * np.pi * rho / h)))
+            phi = 2 * np.pi * (np.arange(m) + rng.uniform()) / m
+            pts.append(np.column_stack([rho * np.cos(phi), rho * np.sin(phi), np.full(m, z)]))
+        cap = np.vstack(pts)
+        return cap, _counter_clockwise(Delaunay(cap[:, :2] / h).simplices, cap[:, :2] / h), n_rim
 
-        # flat background: coarse grid + the slab outline (spacing h_bg)
+    def _flat_points(self) -> np.ndarray:
+        """(x, y) of the flat top outside the caps [m]: a guard ring just outside every rim (keeps
+        flat triangles off the caps), a coarse background grid and the slab outline."""
+        a, h = self.diameter / 2, self.edge_length
+        centers = self.lens_centers()
+        guard_r = a + 0.5 * h
+        m = max(12, int(np.ceil(2 * np.pi * guard_r / h)))
+        phi = 2 * np.pi * (np.arange(m) + 0.5) / m
+        ring = guard_r * np.column_stack([np.cos(phi), np.sin(phi)])
+        guards = (centers[:, None, :] + ring[None]).reshape(-1, 2)
         x0, y0, x1, y1 = self.slab_bounds()
         h_bg = max(4 * h, min(self.pitch / 4, 1e-6))
         nbx, nby = max(2, int(np.ceil((x1 - x0) / h_bg)) + 1), max(2, int(np.ceil((y1 - y0) / h_bg)) + 1)
         bx, by = np.linspace(x0, x1, nbx), np.linspace(y0, y1, nby)
         gx, gy = np.meshgrid(bx[1:-1], by[1:-1])
         grid = np.column_stack([gx.ravel(), gy.ravel()])
-        d = np.sqrt(((grid[:, None, :] - centers[None]) ** 2).sum(-1)).min(1)
-        grid = grid[d > a + 1.0 * h]
         outline = np.vstack([
             np.column_stack([bx, np.full(nbx, y0)]), np.column_stack([bx, np.full(nbx, y1)]),
             np.column_stack([np.full(nby - 2, x0), by[1:-1]]), np.column_stack([np.full(nby - 2, x1), by[1:-1]]),
         ])
-        flat = np.vstack([grid, outline])
-        flat = np.column_stack([flat, np.zeros(len(flat))])
-        top = np.vstack([caps, flat])
-        # merge coincident points (touching rims when pitch == diameter)
-        key = np.round(top[:, :2] / (1e-4 * h)).astype(np.int64)
+        # guard points inside a touching neighbour, and grid points near any rim, are dropped
+        keep_guard = _distance_to_nearest(guards, centers) > a + 1e-3 * h
+        keep_grid = _distance_to_nearest(grid, centers) > a + 1.0 * h
+        return np.vstack([guards[keep_guard], grid[keep_grid], outline])
+
+    def _top_surface(self):
+        """Vertices (x, y, z) [m] and triangles of the top surface (a height field).
+
+        Caps: the template's triangulation, translated to every lens. Flat: a Delaunay
+        triangulation of the rim and flat points, less the triangles inside a rim (all three
+        vertices on the same rim). The edge between neighbouring rim vertices is in both (a circle
+        through them just inside the rim holds no other point), so the two triangulations meet
+        along every rim edge for edge.
+        """
+        cap, cap_faces, n_rim = self._cap_template()
+        centers = self.lens_centers()
+        n_lens, n_cap = len(centers), len(cap)
+        caps = (cap[None] + np.column_stack([centers, np.zeros(n_lens)])[:, None, :]).reshape(-1, 3)
+        faces = [(cap_faces[None] + n_cap * np.arange(n_lens)[:, None, None]).reshape(-1, 3)]
+
+        flat = self._flat_points()
+        rim_index = (n_cap * np.arange(n_lens)[:, None] + np.arange(n_cap - n_rim, n_cap)[None]).ravel()
+        pts2d = np.vstack([caps[rim_index, :2], flat]) / self.edge_length
+        flat_faces = Delaunay(pts2d).simplices
+        lens_of = np.concatenate([np.repeat(np.arange(n_lens), n_rim), np.full(len(flat), -1)])
+        owner = lens_of[flat_faces]
+        inside_rim = (owner[:, 0] >= 0) & (owner[:, 0] == owner[:, 1]) & (owner[:, 0] == owner[:, 2])
+        to_global = np.concatenate([rim_index, n_lens * n_cap + np.arange(len(flat))])
+        faces.append(to_global[_counter_clockwise(flat_faces[~inside_rim], pts2d)])
+
+        top = np.vstack([caps, np.column_stack([flat, np.zeros(len(flat))])])
+        faces = np.vstack(faces)
+        # merge coincident points (a rim vertex exactly on a touching neighbour's)
+        key = np.round(top[:, :2] / (1e-4 * self.edge_length)).astype(np.int64)
         key -= key.min(0)
-        _, keep = np.unique(key[:, 0] * (key[:, 1].max() + 1) + key[:, 1], return_index=True)  # one int64 per (x, y)
-        return top[np.sort(keep)]
+        _, first, inverse = np.unique(key[:, 0] * (key[:, 1].max() + 1) + key[:, 1], return_index=True,
+                                      return_inverse=True)
+        if len(first) < len(top):
+            keep = np.sort(first)
+            new_index = np.empty(len(first), np.int64)
+            new_index[np.argsort(first)] = np.arange(len(first))  # unique group -> position in keep
+            faces = new_index[inverse][faces]
+            top = top[keep]
+            faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+        return top, faces
 
     def mesh(self) -> trimesh.Trimesh:
         """The sample as one watertight, consistently wound triangle mesh, coordinates in metres."""
-        top = self._top_points()
-        scale = 1.0 / self.edge_length  # triangulate in O(1) units
-        tri = Delaunay(top[:, :2] * scale)
-        f = tri.simplices.astype(np.int64)
-        p = top[:, :2] * scale
-        area2 = ((p[f[:, 1], 0] - p[f[:, 0], 0]) * (p[f[:, 2], 1] - p[f[:, 0], 1])
-                 - (p[f[:, 2], 0] - p[f[:, 0], 0]) * (p[f[:, 1], 1] - p[f[:, 0], 1]))
-        f = f[np.abs(area2) > 1e-9]  # drop degenerate (collinear outline) triangles
-        area2 = area2[np.abs(area2) > 1e-9]
-        f[area2 < 0] = f[area2 < 0][:, [0, 2, 1]]  # counter-clockwise in xy → normals up
+        top, f = self._top_surface()
 
         # directed boundary edges (i → j, counter-clockwise around the top)
         e = np.vstack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
