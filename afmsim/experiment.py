@@ -23,6 +23,7 @@ import numpy as np
 from afmsim.compensation import build_controller
 from afmsim.metrics import image_shift, lens_centres, left_right_pitch, nsl2_binarized, summarize
 from afmsim.metrics.nsl2 import e_D
+from afmsim.reproducible import single_blas_thread
 from afmsim.samples import HeightMap, MicroLensArray, grating_heightmap, load_heightmap, mesh_file_to_heightmap
 from afmsim.scan import RasterGeometry, ScanImages, ZFeedback, ZStage, raster_trajectory, scan_frame
 from afmsim.scenario import Scenario
@@ -179,6 +180,7 @@ def _central_lens_shift(trace: HeightMap, retrace: HeightMap):
     return float(found[1][0] - found[0][0])
 
 
+@single_blas_thread
 def run_scenario(scenario: Scenario, progress=None) -> ScenarioResult:
     """Run every experiment of a scenario; ``progress(step, total, label)`` is called if given."""
     geometry = scan_geometry(scenario)

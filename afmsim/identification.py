@@ -19,6 +19,7 @@ import numpy as np
 
 from afmsim.hysteresis import MODELS
 from afmsim.metrics import summarize
+from afmsim.reproducible import single_blas_thread
 from afmsim.runio import write_json
 from afmsim.stage import IdentificationRecord, XYStage, default_stage, identification_experiment
 
@@ -40,6 +41,7 @@ class IdentificationResult:
     settings: dict = field(default_factory=dict)
 
 
+@single_blas_thread
 def identify(stage: XYStage | None = None, *, seed: int = 0, experiments: int = 10, amplitude_V: float = 9.1,
              frequency_hz: float = 1.0, sample_rate_hz: float = 1000.0, n_operators: int = 10,
              models=None) -> IdentificationResult:

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from afmsim.reproducible import single_blas_thread
+
 from .localise import localise
 from .loops import LoopRecord, load_record
 from .model import Design, ModelSpec, fit_model
@@ -88,6 +90,7 @@ def _rms(a) -> float:
     return float(np.sqrt(np.mean(a**2)))
 
 
+@single_blas_thread
 def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=None, figure_path=None,
                     train_fraction: float = TRAIN_FRACTION, modelled=()) -> tuple[dict, str, dict]:
     """Diagnosis of a validated record; returns ``(report, summary, internals)``.

@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from afmsim.reproducible import single_blas_thread
+
 from .attribute import noise_floor, significance
 from .image_fit import ImageDesign, ImageFit, fit_image, redundancy
 from .image_localise import localise_image
@@ -201,6 +203,7 @@ def _greedy(design: ImageDesign, base: ImageFit, modelled: tuple, avail: list, s
     return current, cur_fit, cur_r, evaluations
 
 
+@single_blas_thread
 def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str = "auto", baseline: str = "asymmetric",
                           candidates=None, figure_path=None) -> tuple[dict, str, dict]:
     """Diagnosis of a validated image pair; returns ``(report, summary, internals)``.
