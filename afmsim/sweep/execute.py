@@ -134,13 +134,13 @@ def _compute(client, todo: list[Run], runs_dir: Path, key_prefix: str, progress,
     from dask.distributed import as_completed
 
     by_key = {f"{key_prefix}-{run.run_id}": run for run in todo}
-    futures = [client.submit(run_one, run, key=key, pure=False) for key, run in by_key.items()]
+    # one batched submission; each result travels with its completion notice (no round trip per run)
+    futures = client.map(run_one, todo, key=list(by_key), pure=False)
     computed, failures = [], []
-    for future in as_completed(futures):
+    for future, row in as_completed(futures, with_results=True, raise_errors=False):
         run = by_key[future.key]
-        try:
-            row = future.result()
-        except Exception as error:  # noqa: BLE001 - any failure of one run is recorded, the others go on
+        if future.status == "error":  # any failure of one run is recorded, the others go on
+            error = future.exception()
             message = (str(error).splitlines() or [""])[0]
             failures.append({"run_id": run.run_id, "params": run.params, "error": f"{type(error).__name__}: {message}"})
         else:
