@@ -37,11 +37,15 @@ def scheduler(cluster):
 
 
 def _worker_environment():
-    return {name: os.environ.get(name) for name in ("MALLOC_TRIM_THRESHOLD_", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+    import dask
+
+    found = {name: os.environ.get(name) for name in ("MALLOC_TRIM_THRESHOLD_", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+    return {**found, "profiler": dask.config.get("distributed.worker.profile.enabled")}
 
 
-def test_default_workers_keep_glibc_adaptive_mmap_and_one_thread(cluster):
-    """Dask's MALLOC_TRIM_THRESHOLD_ (which costs the runs ~30 % in page faults) is not passed on; the thread caps are."""
+def test_default_workers_keep_glibc_adaptive_mmap_one_thread_and_no_profiler(cluster):
+    """Dask's MALLOC_TRIM_THRESHOLD_ (which costs the runs ~30 % in page faults) is not passed on, nor
+    is the 10 ms stack-sampling profiler; the thread caps are."""
     from dask.distributed import Client
 
     with Client(cluster) as client:
@@ -49,7 +53,7 @@ def test_default_workers_keep_glibc_adaptive_mmap_and_one_thread(cluster):
     assert len(environments) == 2
     expected = {"MALLOC_TRIM_THRESHOLD_": os.environ.get("MALLOC_TRIM_THRESHOLD_"),  # inherited, not Dask's 65536
                 "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"),
-                "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1")}
+                "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS", "1"), "profiler": False}
     for environment in environments.values():
         assert environment == expected
 
