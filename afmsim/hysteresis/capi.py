@@ -94,17 +94,25 @@ class CAPI:
     name = "capi"
 
     @staticmethod
-    def _design(d, widths, offset, d_mid, half_span, h0, degree, poly_degree) -> np.ndarray:
+    def _blocks(d, widths, offset, d_mid, half_span, h0, degree, poly_degree):
+        """The design's column blocks, in the order of the weights: H, 1, the lag powers
+        r·(lag/r)^k (k = 2…K), u^k (k = 2…K_d) and lag·u."""
         x = d - offset
         H = osp(x, widths, h0)
         lag = x[:, None] - H[:, 1:]
         r = widths[1:]
         u = (d - d_mid) / half_span
-        columns = [H, np.ones((d.size, 1))]
-        columns += [r * (lag / r) ** k for k in range(2, degree + 1)]
-        columns += [u[:, None] ** k for k in range(2, poly_degree + 1)]
-        columns += [lag * u[:, None]]
-        return np.hstack(columns)
+        yield H
+        yield np.ones((d.size, 1))
+        for k in range(2, degree + 1):
+            yield r * (lag / r) ** k
+        for k in range(2, poly_degree + 1):
+            yield u[:, None] ** k
+        yield lag * u[:, None]
+
+    @classmethod
+    def _design(cls, *args) -> np.ndarray:
+        return np.hstack(list(cls._blocks(*args)))
 
     @classmethod
     def fit(cls, displacement, voltage, n_operators: int = 10, spacing: str = "quadratic", h0: float = 0.0,
@@ -146,24 +154,16 @@ class CAPI:
     def predict(self, displacement) -> np.ndarray:
         """Feedforward voltage (V) for a displacement trajectory (m), from the eq. (4) state.
 
-        The same sum as the fit's design matrix times the weights, term by term, so no
-        (M, N·K) design matrix is built for a long trajectory.
+        The fit's design matrix times the weights, block by block, so no (M, N·K) matrix is built
+        for a long trajectory.
         """
         d = np.asarray(displacement, dtype=np.float64)
-        x = d - self.offset
-        H = osp(x, self.widths, self.h0)
-        voltage = H @ self.weights + self.poly[0]
-        lag = x[:, None] - H[:, 1:]
-        r = self.widths[1:]
-        scaled = lag / r
-        power = scaled
-        for k in range(2, self.degree + 1):
-            power = power * scaled
-            voltage += power @ (r * self.curvature[:, k - 2])
-        u = (d - self.d_mid) / self.half_span
-        for k in range(2, self.poly_degree + 1):
-            voltage += self.poly[k] * u**k
-        voltage += u * (lag @ self.cross)
+        w = np.concatenate([self.weights, [self.poly[0]], self.curvature.T.ravel(), self.poly[2:], self.cross])
+        voltage, start = np.zeros(d.size), 0
+        for block in self._blocks(d, self.widths, self.offset, self.d_mid, self.half_span, self.h0,
+                                  self.degree, self.poly_degree):
+            voltage += block @ w[start:start + block.shape[1]]
+            start += block.shape[1]
         return voltage
 
     def params(self) -> dict:
