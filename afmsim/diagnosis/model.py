@@ -276,13 +276,14 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
         grid = np.geomspace(0.3 * d.dt, max(0.02, 3 * d.dt), 10)
         best = None
         for discretisation in LAG_DISCRETISATIONS:
-            errors = [train_error((discretisation, tau)) for tau in grid]
-            k = int(np.argmin(errors))
-            # one refinement around the best grid point
+            errors = {float(tau): train_error((discretisation, tau)) for tau in grid}
+            k = int(np.argmin(list(errors.values())))
+            # one refinement around the best grid point (geomspace keeps the end points exact)
             for tau in np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)], 5):
-                error = errors[k] if tau == grid[k] else train_error((discretisation, tau))
+                tau = float(tau)
+                error = errors[tau] if tau in errors else train_error((discretisation, tau))
                 if best is None or error < best[0]:
-                    best = (error, (discretisation, float(tau)))
+                    best = (error, (discretisation, tau))
         lag = best[1]
         params["dynamics"] = {"lag_time_constant_s": lag_delay(*lag, d.dt), "discretisation": lag[0]}
         n_params += 2  # τ and the discretisation
