@@ -19,14 +19,12 @@ import numpy as np
 
 from afmsim.hysteresis import MODELS
 from afmsim.metrics import summarize
+from afmsim.paper import TABLE2_MEANS, TABLE2_RATIO
 from afmsim.reproducible import single_blas_thread
 from afmsim.runio import write_json
 from afmsim.stage import IdentificationRecord, XYStage, default_stage, identification_experiment
 
 __all__ = ["IdentificationResult", "identify", "table1", "table2", "write_identification"]
-
-#: Paper Table 2 means (V), shown beside afmsim's figures.
-PAPER_TABLE2 = {"spi": {"rms_V": 0.080, "max_V": 0.277}, "diapi": {"rms_V": 0.021, "max_V": 0.063}}
 
 
 @dataclass
@@ -93,12 +91,12 @@ def table2(result: IdentificationResult) -> str:
         row = " ".join(f"{summarize(result.errors[n]['rms_V'])[stat]:>11.4f}" for n in names) + "  " + \
               " ".join(f"{summarize(result.errors[n]['max_V'])[stat]:>11.4f}" for n in names)
         lines.append(f"{label:>5} " + row)
-    paper = " ".join(f"{PAPER_TABLE2.get(n, {}).get('rms_V', float('nan')):>11.3f}" for n in names) + "  " + \
-            " ".join(f"{PAPER_TABLE2.get(n, {}).get('max_V', float('nan')):>11.3f}" for n in names)
+    paper = " ".join(f"{TABLE2_MEANS.get(n, {}).get('rms_V', float('nan')):>11.3f}" for n in names) + "  " + \
+            " ".join(f"{TABLE2_MEANS.get(n, {}).get('max_V', float('nan')):>11.3f}" for n in names)
     lines.append(f"{'paper':>5} " + paper.replace("nan", "  -"))
     if "spi" in names and "diapi" in names:
         ratio = summarize(result.errors["diapi"]["rms_V"])["mean"] / summarize(result.errors["spi"]["rms_V"])["mean"]
-        lines.append(f"DIAPI/SPI mean RMS ratio: {ratio:.2f} (paper 0.26)")
+        lines.append(f"DIAPI/SPI mean RMS ratio: {ratio:.2f} (paper {TABLE2_RATIO:.2f})")
     return "\n".join(lines)
 
 
@@ -109,7 +107,7 @@ def summary_dict(result: IdentificationResult) -> dict:
         models[name] = {stat: summarize(result.errors[name][stat]) for stat in ("rms_V", "max_V")}
         models[name]["params"] = model.params()
         models[name]["fit_seconds"] = result.fit_seconds[name]
-    out = {"settings": result.settings, "models": models, "paper_table2": PAPER_TABLE2}
+    out = {"settings": result.settings, "models": models, "paper_table2": TABLE2_MEANS}
     if "spi" in models and "diapi" in models:
         out["diapi_over_spi_rms"] = models["diapi"]["rms_V"]["mean"] / models["spi"]["rms_V"]["mean"]
     return out

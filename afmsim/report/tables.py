@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from afmsim.paper import TABLE2_MEANS, TABLE2_RATIO, TABLE3, TABLE4
+
 __all__ = ["PAPER_COLUMNS", "PAPER_TABLE3", "PAPER_TABLE4", "paper_nsl2_for", "nsl2_table", "write_nsl2_table",
            "identification_table2", "identification_table1_csv", "markdown_table"]
 
@@ -26,10 +28,8 @@ __all__ = ["PAPER_COLUMNS", "PAPER_TABLE3", "PAPER_TABLE4", "paper_nsl2_for", "n
 PAPER_COLUMNS = {"none": "D_N", "spi": "D_S", "diapi": "D_A", "vendor": "D_B"}
 _COLUMN_LABEL = {"D_N": "without calibration", "D_S": "SPI model", "D_A": "DIAPI model", "D_B": "Bruker AFM"}
 
-#: Paper Table 3 (micro-lens) means; e_D as a fraction.
-PAPER_TABLE3 = {"D_N": 45814.0, "D_S": 2322.0, "D_A": 1293.0, "D_B": 1545.0, "e_D": 0.443}
-#: Paper Table 4 (silicon grating) means; e_D as a fraction.
-PAPER_TABLE4 = {"D_N": 178272.0, "D_S": 6467.0, "D_A": 4023.0, "D_B": 4717.0, "e_D": 0.378}
+#: Paper Table 3 (micro-lens) and Table 4 (silicon grating) means; e_D as a fraction.
+PAPER_TABLE3, PAPER_TABLE4 = TABLE3, TABLE4
 
 
 def paper_nsl2_for(kind: str) -> tuple[str, dict]:
@@ -151,7 +151,6 @@ def write_nsl2_table(metrics: dict, kind: str, folder) -> tuple[dict, list[Path]
 
 def identification_table2(result) -> tuple[str, str]:
     """Table 2 analogue (RMS and max voltage error, V) as ``(markdown, csv)`` with the paper's column."""
-    from afmsim.identification import PAPER_TABLE2
     from afmsim.metrics import summarize
 
     names = list(result.errors)
@@ -170,7 +169,7 @@ def identification_table2(result) -> tuple[str, str]:
         vals = [summarize(result.errors[n][s])[stat] for n, s, _ in cols]
         w.writerow([label, *[f"{v:.6g}" for v in vals]])
         rows_md.append([f"**{label}**" if label == "mean" else "σ", *[_fmt(v, ".4f") for v in vals]])
-    paper = [PAPER_TABLE2.get(n, {}).get(s) for n, s, _ in cols]
+    paper = [TABLE2_MEANS.get(n, {}).get(s) for n, s, _ in cols]
     w.writerow(["paper", *["" if v is None else f"{v:.6g}" for v in paper]])
     rows_md.append(["paper mean", *[_fmt(v, ".3f") for v in paper]])
     md = ["**Table 2 analogue: model voltage errors (V) on fresh experiments**", "",
@@ -178,13 +177,13 @@ def identification_table2(result) -> tuple[str, str]:
     srows = []
     for n in names:
         r, m = summarize(result.errors[n]["rms_V"]), summarize(result.errors[n]["max_V"])
-        p = PAPER_TABLE2.get(n, {})
+        p = TABLE2_MEANS.get(n, {})
         srows.append([n.upper(), _fmt(p.get("rms_V"), ".3f"), _fmt(r["mean"], ".4f"), _fmt(r["std"], ".4f"),
                       _fmt(p.get("max_V"), ".3f"), _fmt(m["mean"], ".4f")])
     md.append(markdown_table(["model", "paper RMS", "afmsim RMS", "afmsim σ", "paper max", "afmsim max"], srows))
     if "spi" in names and "diapi" in names:
         ratio = summarize(result.errors["diapi"]["rms_V"])["mean"] / summarize(result.errors["spi"]["rms_V"])["mean"]
-        md += ["", f"DIAPI/SPI mean RMS ratio: {ratio:.2f} (paper 0.26)"]
+        md += ["", f"DIAPI/SPI mean RMS ratio: {ratio:.2f} (paper {TABLE2_RATIO:.2f})"]
     return "\n".join(md) + "\n", buf.getvalue()
 
 
