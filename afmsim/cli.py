@@ -31,7 +31,8 @@ def identify(
     seed: int = typer.Option(0, min=0, help="Seed of the numpy Generator for all noise draws."),
     experiments: int = typer.Option(10, min=1, max=1000, help="Repeated evaluation experiments (fresh noise)."),
     n_operators: int = typer.Option(10, min=1, max=50, help="Backlash operators N per model."),
-    hysteresis: str = typer.Option("preisach", help="Plant hysteresis family: preisach or bouc_wen."),
+    hysteresis: str = typer.Option("preisach", help="Plant hysteresis family (afmsim.stage.HYSTERESIS_MODELS): "
+                                   "preisach (state-bound minor loops), duhem (direction-bound) or linear."),
 ):
     """Identify SPI, DIAPI, IIAPI and the better model on the default stage (paper §3.2, Tables 1–2).
 

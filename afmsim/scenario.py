@@ -185,7 +185,7 @@ class TipSpec(_Block):
 class StageSpec(_Block):
     """The XY plant's physics switches and parameters (SI conversions in afmsim.experiment)."""
 
-    hysteresis: Literal["preisach", "bouc_wen"] = "preisach"
+    hysteresis: Literal["preisach", "duhem"] = "preisach"
     saturation: StrictBool = True
     amplifier: StrictBool = True
     creep: StrictBool = True

@@ -9,15 +9,15 @@ Quick use::
     ideal = stage.hysteresis_free()              # same plant, hysteresis → nominal sensitivity
     quiet = stage.with_effects(creep=False, noise=False, coupling=False)
 
-The plant's hysteresis deliberately comes from a different family (Preisach or Bouc–Wen) than the
+The plant's hysteresis deliberately comes from a different family (Preisach or Duhem) than the
 Prandtl–Ishlinskii compensators of :mod:`afmsim.hysteresis` (no inverse crime).
 """
 
 from .axis import AxisParams, PiezoAxis, creep_bank
-from .hysteresis_models import (HYSTERESIS_MODELS, AsymmetricBoucWen, AsymmetricPreisach, HysteresisModel,
+from .hysteresis_models import (HYSTERESIS_MODELS, AsymmetricDuhem, AsymmetricPreisach, HysteresisModel,
                                 LinearHysteresis)
 from .stage import IdentificationRecord, XYStage, default_stage, identification_experiment, triangle_wave
 
 __all__ = ["AxisParams", "PiezoAxis", "XYStage", "default_stage", "triangle_wave", "identification_experiment",
-           "IdentificationRecord", "HysteresisModel", "AsymmetricPreisach", "AsymmetricBoucWen",
+           "IdentificationRecord", "HysteresisModel", "AsymmetricPreisach", "AsymmetricDuhem",
            "LinearHysteresis", "HYSTERESIS_MODELS", "creep_bank"]

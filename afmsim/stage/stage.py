@@ -73,8 +73,9 @@ class XYStage:
 def default_stage(hysteresis: str | HysteresisModel = "preisach", **axis_overrides) -> XYStage:
     """The paper's 100 µm × 100 µm stage with documented defaults (see :class:`AxisParams`).
 
-    ``hysteresis`` picks the plant family: ``"preisach"`` (default), ``"bouc_wen"``, ``"linear"``
-    or a model instance. ``axis_overrides`` replace :class:`AxisParams` fields on both axes. The
+    ``hysteresis`` picks the plant family (:data:`HYSTERESIS_MODELS`): ``"preisach"`` (default,
+    state-bound minor loops), ``"duhem"`` (direction-bound minor loops), ``"linear"`` or a model
+    instance. ``axis_overrides`` replace :class:`AxisParams` fields on both axes. The
     Y axis drifts at 3 nm/min (X: 5 nm/min) so that the two are distinguishable.
     """
     model = HYSTERESIS_MODELS[hysteresis]() if isinstance(hysteresis, str) else hysteresis
