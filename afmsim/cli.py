@@ -201,7 +201,10 @@ def _print_summary(metrics: dict) -> None:
 def diagnose(
     measured: Path = typer.Option(..., "--measured", help="Measured data: a loop record CSV (t_s,v_V,x_m[,y_m]), or "
                                                           "trace/retrace images: .npz (trace, retrace, scan_size_m, "
-                                                          "line_rate_hz; or a run's images.npz) or .gwy."),
+                                                          "line_rate_hz; or a run's images.npz), .gwy, or an "
+                                                          "instrument file (.nid, .ibw, .spm, .000-.999: the "
+                                                          "topography's forward/backward scans, scan size and "
+                                                          "line time from the file)."),
     scenario: Optional[Path] = typer.Option(None, "--scenario", help="Scenario YAML of the model: effects its stage "
                                                                      "switches on are already modelled; for images "
                                                                      "also the imaged sample, tip and Z loop."),
@@ -210,7 +213,8 @@ def diagnose(
     reference: str = typer.Option("auto", help="Images: what the tip traced — scenario (its sample and tip), "
                                                "trace (the measured trace) or auto (scenario when given)."),
     channel: Optional[str] = typer.Option(None, help="Images: controller channel of a run's images.npz/.gwy "
-                                                     "(default: none)."),
+                                                     "(default: none), or the channel of an instrument file "
+                                                     "(default: its topography; see 'afmsim inspect')."),
     seed: int = typer.Option(0, min=0, help="Recorded for provenance (the diagnosis is deterministic)."),
 ):
     """Sim-to-real gap diagnosis of measured loops or trace/retrace images: where the baseline misses,
@@ -220,9 +224,11 @@ def diagnose(
     Python: afmsim.diagnosis.diagnose_loops(path, scenario=...) or diagnose_images(path, scenario=...).
     """
     from afmsim.diagnosis import diagnose_images, diagnose_loops
+    from afmsim.diagnosis.images import instrument_pair
+    from afmsim.readers import reader_for
     from afmsim.runio import default_run_dir, run_folder, write_json
 
-    images = measured.suffix.lower() in (".npz", ".gwy")
+    images = reader_for(measured) is not None
     if baseline not in ("preisach", "symmetric"):
         _fail(f"--baseline must be 'preisach' or 'symmetric', got {baseline!r}")
     if reference not in ("auto", "scenario", "trace"):
@@ -231,8 +237,15 @@ def diagnose(
     out = out or default_run_dir("diagnose", measured.stem)
     if out.exists():
         _fail(f"output folder {out} already exists: choose another --out or remove it")
+    try:  # an instrument file is read and its height pair picked before anything is written
+        pair = instrument_pair(measured, channel) if images else None
+    except ValueError as error:
+        _fail(str(error).splitlines()[0])
+    if pair is not None:
+        typer.echo(pair[2])
     config = {"measured": str(measured), "scenario": None if scenario is None else str(scenario), "baseline": baseline,
-              "seed": seed, **({"reference": reference, "channel": channel} if images else {})}
+              "seed": seed, **({"reference": reference, "channel": channel} if images else {}),
+              **({"picked": pair[2]} if pair is not None else {})}
     try:
         with run_folder(out, config=config, seed=seed, command="diagnose") as folder:
             if images:
@@ -248,6 +261,28 @@ def diagnose(
         _fail(str(error).splitlines()[0])
     typer.echo(summary)
     typer.echo(f"wrote {out}")
+
+
+@app.command()
+def inspect(
+    file: Path = typer.Argument(..., help="An AFM file: .nid, .gwy, .ibw, .spm, .000-.999 or afmsim's .npz."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON: {format, channels: [{name, direction, quantity, "
+                                                       "unit, shape, size_m, line_time_s}], picked}."),
+):
+    """List every channel of an AFM file: name, direction, quantity, unit, pixels, size, line time,
+    and the height pair 'diagnose --measured' would use.
+
+    Python: afmsim.readers.read_afm_file(path), then channel_listing(afm) or format_listing(afm).
+    """
+    import json
+
+    from afmsim.readers import ReaderError, channel_listing, format_listing, read_afm_file
+
+    try:
+        afm = read_afm_file(file)
+    except ReaderError as error:
+        _fail(str(error))
+    typer.echo(json.dumps(channel_listing(afm), indent=2, ensure_ascii=False) if as_json else format_listing(afm))
 
 
 @app.command("validate-diagnosis")

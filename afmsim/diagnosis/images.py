@@ -1,4 +1,4 @@
-"""Reading and validating measured trace/retrace images (``.npz``, ``.gwy``, or arrays).
+"""Reading and validating measured trace/retrace images (``.npz``, ``.gwy``, vendor files, or arrays).
 
 Accepted inputs (heights in metres, rows = scan lines along +y, columns = pixels left → right in
 *both* images, i.e. the retrace already re-ordered to intended x):
@@ -11,6 +11,12 @@ Accepted inputs (heights in metres, rows = scan lines along +y, columns = pixels
 * Gwyddion ``.gwy`` with channels titled ``trace``/``retrace`` (or ``trace <c>``/``retrace <c>``, as
   ``afmsim run`` writes them); scan size and offset from the channel geometry, the line rate from
   the ``line_rate_hz`` argument;
+* an instrument file that :mod:`afmsim.readers` reads (Nanosurf ``.nid``, Asylum ``.ibw``, Bruker
+  ``.spm``/``.000``–``.999``, or a ``.gwy`` without trace/retrace titles): the height channel's
+  forward/backward scans as :func:`afmsim.readers.pick_height_pair` picks them (``channel``
+  overrides), scan size from the file, line rate ``1 / (2 · line_time_s)`` from the file (else the
+  ``line_rate_hz`` argument); rows in the order they were scanned (a top-down frame's rows
+  reversed); no scan offset (the vendors' offsets are not stage coordinates);
 * a mapping with the ``.npz`` keys.
 
 Every problem raises :class:`ValueError` with one line naming the field. Isolated non-finite
@@ -25,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ImageRecord", "load_images", "MIN_LINES", "MIN_PIXELS"]
+__all__ = ["ImageRecord", "load_images", "instrument_pair", "MIN_LINES", "MIN_PIXELS"]
 
 MIN_LINES = 16
 MIN_PIXELS = 16
@@ -198,23 +204,58 @@ def _read_gwy(path: Path, channel, line_rate_hz) -> dict:
             "scan_offset_m": (t.origin[0] - dx / 2, t.origin[1] - dy / 2), "_channel": name}
 
 
-def load_images(source, *, channel: str | None = None, line_rate_hz: float | None = None) -> ImageRecord:
-    """Validated :class:`ImageRecord` from a ``.npz``/``.gwy`` path or a mapping with the ``.npz`` keys.
+def instrument_pair(path, channel: str | None = None):
+    """``(trace, retrace, picked)`` channels of an instrument file, or None for afmsim's own images.
 
-    ``channel`` picks the controller of a run's ``images.npz``/``images.gwy`` (default ``none``);
-    ``line_rate_hz`` (Hz) is used where the file has none.
+    None for a ``.npz`` and for a ``.gwy`` titled ``trace``/``retrace`` (as ``afmsim run`` writes);
+    otherwise the pair :func:`afmsim.readers.pick_height_pair` picks, with its one-line description.
+    Raises :class:`afmsim.readers.ReaderError` (a ``ValueError``) for an unreadable file.
+    """
+    from afmsim.readers import pick_height_pair, read_afm_file
+
+    path = Path(path)
+    if path.suffix.lower() == ".npz":
+        return None
+    afm = read_afm_file(path)
+    if afm.format == "gwy" and any(c.direction in ("trace", "retrace") for c in afm.channels):
+        return None
+    return pick_height_pair(afm, channel)
+
+
+def _read_instrument(path: Path, pair, line_rate_hz) -> dict:
+    trace, retrace, _ = pair
+    rate = 1.0 / (2.0 * trace.line_time_s) if trace.line_time_s else line_rate_hz
+    if rate is None:
+        raise ValueError(f"{path.name}: the file gives no line time; give --scenario (scan.line_rate_hz)")
+    return {"trace": trace.data, "retrace": retrace.data, "scan_size_m": trace.size_m, "line_rate_hz": rate,
+            "_channel": f"{trace.name} {trace.direction}/{retrace.direction}"}
+
+
+def load_images(source, *, channel: str | None = None, line_rate_hz: float | None = None) -> ImageRecord:
+    """Validated :class:`ImageRecord` from a ``.npz``/``.gwy``/instrument-file path or a mapping with
+    the ``.npz`` keys.
+
+    ``channel`` picks the controller of a run's ``images.npz``/``images.gwy`` (default ``none``), or
+    the vendor channel of an instrument file (default: the topography, see
+    :func:`afmsim.readers.pick_height_pair`); ``line_rate_hz`` (Hz) is used where the file has none.
     """
     if isinstance(source, (str, Path)):
         path = Path(source)
         if not path.is_file():
             raise ValueError(f"image file not found: {path}")
+        from afmsim.readers import FORMATS, reader_for
+
         suffix = path.suffix.lower()
-        if suffix == ".npz":
+        pair = instrument_pair(path, channel) if reader_for(path) is not None else None
+        if pair is not None:
+            cols = _read_instrument(path, pair, line_rate_hz)
+        elif suffix == ".npz":
             cols = _read_npz(path, channel, line_rate_hz)
         elif suffix == ".gwy":
             cols = _read_gwy(path, channel, line_rate_hz)
         else:
-            raise ValueError(f"image file must be .npz or .gwy, got {path.name}")
+            raise ValueError(f"image file must be .npz or .gwy (images) or an instrument file ({FORMATS}), "
+                             f"got {path.name}")
         label = str(path) + (f" [{cols['_channel']}]" if cols.get("_channel") else "")
     elif isinstance(source, dict):
         missing = [k for k in REQUIRED if k not in source and not (k == "line_rate_hz" and line_rate_hz)]

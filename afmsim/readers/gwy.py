@@ -1,0 +1,54 @@
+"""Gwyddion ``.gwy`` files, read with the ``gwyfile`` package.
+
+Every ``/N/data`` data field becomes a channel; its title carries name and direction
+(``"Z-Axis forward"`` as Gwyddion titles a Nanosurf import, ``"HeightRetrace"``, ``"Topography [Bwd]"``,
+``"trace none"`` as ``afmsim run`` writes). Units from the fields' ``si_unit_z``/``si_unit_xy``.
+Rows as stored: a ``.gwy`` keeps no slow-scan direction, so row 0 is taken as the first line
+scanned (true for files ``afmsim`` writes; a file converted by Gwyddion from another format may
+have been flipped by the import). No line time: Gwyddion does not keep one.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .channels import AfmFile, Channel, ReaderError, quantity_of, split_direction, to_si
+
+__all__ = ["read_gwy_file"]
+
+_MAGIC = b"GWYP"
+
+
+def _unit(field, key: str) -> tuple[str, float]:
+    unit = field.get(key)
+    return to_si(str(unit.get("unitstr", "")) if unit is not None else "")
+
+
+def read_gwy_file(path: Path) -> AfmFile:
+    """Every data field of a Gwyddion ``.gwy`` file as a channel."""
+    from gwyfile.objects import GwyDataField, GwyObject
+
+    with open(path, "rb") as handle:
+        if handle.read(4) != _MAGIC:
+            raise ReaderError(f"{path.name}: not a Gwyddion .gwy file (no GWYP magic)")
+    try:
+        container = GwyObject.fromfile(str(path))
+    except Exception as error:  # gwyfile raises several types on a cut or corrupt file
+        raise ReaderError(f"{path.name}: truncated or corrupt .gwy file ({type(error).__name__})") from None
+    ids = sorted(int(key.split("/")[1]) for key in container
+                 if key.count("/") == 2 and key.endswith("/data") and key.split("/")[1].isdigit()
+                 and isinstance(container[key], GwyDataField))
+    channels = []
+    for i in ids:
+        field = container[f"/{i}/data"]
+        name, direction = split_direction(str(container.get(f"/{i}/data/title", f"channel {i}")))
+        unit, factor = _unit(field, "si_unit_z")
+        _, lateral = _unit(field, "si_unit_xy")
+        data = np.array(field.data, dtype=np.float64) * factor
+        size = (float(field.get("xreal", 1.0)) * lateral, float(field.get("yreal", 1.0)) * lateral)
+        channels.append(Channel(name, direction, quantity_of(name, unit), unit, data, size, None))
+    if not channels:
+        raise ReaderError(f"{path.name}: the .gwy file holds no data fields")
+    return AfmFile(path, "gwy", tuple(channels), {"channels_in_file": len(channels)})

@@ -1,0 +1,93 @@
+"""Bruker/Veeco Nanoscope files (``.spm``, ``.000``–``.999``), read with ``pySPM``'s ``Bruker`` class.
+
+``pySPM`` parses the ``\\*Ciao image list`` blocks and scales each layer to the ``@2:Z scale``
+soft scale (e.g. ``Sens. Zsens``, nm/V) given in the ``\\*Scanner list``; this module checks the file
+before handing it over (``pySPM`` loops forever on a file without ``\\*File list end``, and reads
+past the end of a cut one) and adds from the header what ``pySPM`` leaves out:
+
+* direction per layer from ``Line Direction`` (``Trace``/``Retrace``);
+* line time from ``Scan Rate`` of the ``\\*Ciao scan list`` (Hz, lines per second where a line is
+  trace + retrace, so one direction lasts ``1 / (2 · Scan Rate)``);
+* ``Frame direction``: Nanoscope stores the image's bottom line first (Gwyddion and AFMReader flip
+  it for display), so rows are reversed only for a ``Down`` frame.
+
+Text-mode (``?*File list``) files are refused (``pySPM`` reads binary ones only).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from .channels import AfmFile, Channel, ReaderError, quantity_of, to_si
+
+__all__ = ["read_nanoscope", "is_nanoscope_suffix"]
+
+_MAGIC = b"\\*File list"
+_END = b"\\*File list end"
+
+
+def is_nanoscope_suffix(suffix: str) -> bool:
+    """``.spm`` or a three-digit numbered suffix (``.000``–``.999``)."""
+    return suffix.lower() == ".spm" or re.fullmatch(r"\.\d{3}", suffix) is not None
+
+
+def _header_value(header: str, key: str) -> str | None:
+    match = re.search(r"^\\" + re.escape(key) + r":\s*(.*?)\s*$", header, flags=re.MULTILINE)
+    return match.group(1) if match else None
+
+
+def read_nanoscope(path: Path) -> AfmFile:
+    """Every image layer of a binary Nanoscope file (v4.3 and later headers)."""
+    import pySPM
+
+    raw = path.read_bytes()
+    if not raw.startswith(_MAGIC):
+        hint = " (text-mode Nanoscope files are not supported)" if raw.startswith(b"?*File list") else ""
+        raise ReaderError(f"{path.name}: not a binary Nanoscope file (no \\*File list header){hint}")
+    end = raw.find(_END)
+    if end < 0:
+        raise ReaderError(f"{path.name}: truncated Nanoscope file (no \\*File list end in the header)")
+    header = raw[:end].decode("latin-1").replace("\r\n", "\n")
+    try:
+        scan = pySPM.Bruker(str(path))
+        layers = [(i, layer) for i, layer in enumerate(scan.layers) if b"@2:Image Data" in layer]
+        for i, layer in layers:
+            stop = int(layer[b"Data offset"][0]) + int(layer[b"Data length"][0])
+            if stop > len(raw):
+                raise ReaderError(f"{path.name}: truncated Nanoscope file (layer {i} ends at byte {stop}, "
+                                  f"file has {len(raw)})")
+    except (KeyError, ValueError, IndexError) as error:
+        if isinstance(error, ReaderError):
+            raise
+        raise ReaderError(f"{path.name}: malformed Nanoscope header ({type(error).__name__}: {error})") from None
+    rate = _header_value(header, "Scan Rate") or _header_value(header, "Scan rate")
+    try:
+        line_time = 1.0 / (2.0 * float(rate.split()[0])) if rate else None
+    except (ValueError, ZeroDivisionError, IndexError):
+        line_time = None
+    down = (_header_value(header, "Frame direction") or "Up").lower().startswith("down")
+    channels = []
+    for i, layer in layers:
+        title = layer[b"@2:Image Data"][0].decode("latin-1")
+        quoted = re.search(r'"([^"]*)"', title)
+        name = quoted.group(1) if quoted else title
+        retrace = layer.get(b"Line Direction", [b"Trace"])[0].strip().lower() == b"retrace"
+        try:
+            image = scan.get_channel(name, backward=retrace, lazy=False)
+        except Exception as error:  # pySPM raises bare Exception / re errors for what it cannot scale
+            raise ReaderError(f"{path.name}: cannot scale layer {i} '{name}' ({type(error).__name__})") from None
+        unit, factor = to_si(image.zscale)
+        xy_unit = to_si(image.size["real"]["unit"])[1]
+        data = np.asarray(image.pixels, dtype=np.float64) * factor
+        size = (image.size["real"]["x"] * xy_unit, image.size["real"]["y"] * xy_unit)
+        channels.append(Channel(name, "retrace" if retrace else "trace", quantity_of(name, unit), unit,
+                                data[::-1].copy() if down else data, size, line_time))
+    if not channels:
+        raise ReaderError(f"{path.name}: no image layers (\\*Ciao image list) in the Nanoscope file")
+    metadata = {key: value for key in ("Version", "Date", "Operating mode", "Scan Size", "Scan Rate", "Samps/line",
+                                       "Lines", "Rotate Ang.") if (value := _header_value(header, key))}
+    metadata.update({"slow_scan": "down" if down else "up", "rows_reversed_to_acquisition_order": down})
+    return AfmFile(path, "nanoscope", tuple(channels), metadata)

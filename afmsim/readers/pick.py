@@ -1,0 +1,92 @@
+"""Which channel of a file is the topography, and its trace/retrace pair.
+
+Preference among the length (m) channels that hold both scan directions, first in file order
+within a rank:
+
+0. the Z drive / topography (``Topography``, ``Height``, ``Z-Axis``, ``Z``): what the Z loop
+   commands, which is what ``afmsim`` records as height (:mod:`afmsim.scan.zloop`);
+1. a Z position sensor (``Z-Axis Sensor``, ``ZSensor``, ``Height Sensor``): the true height, but
+   not what the simulated instrument records;
+2. any other length channel the vendor did not name as deflection, amplitude, …
+
+Second-pass (lift/interleave, Nanosurf "2nd scan") channels are never picked unless named.
+"""
+
+from __future__ import annotations
+
+import re
+
+from .channels import RETRACE_DIRECTIONS, TRACE_DIRECTIONS, AfmFile, Channel, ReaderError
+
+__all__ = ["pick_height_pair"]
+
+_REASONS = ("the Z drive/topography, what afmsim records as height", "a Z position sensor, the best height "
+            "channel with both directions", "a length channel with both directions (no better-named height)")
+
+
+def _rank(channel: Channel) -> int | None:
+    low = channel.name.lower()
+    if channel.quantity != "height" or channel.unit != "m" or re.search(r"2nd|lift|interleave|nap", low):
+        return None
+    if re.search(r"sensor|sens\b", low):
+        return 1
+    if re.search(r"topo|height|z[-_ ]?axis|z[-_ ]?piezo|^z\b", low):
+        return 0
+    return 2
+
+
+def _pairs(channels) -> dict[str, dict[str, Channel]]:
+    """``{name: {"trace": channel, "retrace": channel}}`` (either may be missing), file order."""
+    out: dict[str, dict[str, Channel]] = {}
+    for channel in channels:
+        side = "trace" if channel.direction in TRACE_DIRECTIONS else \
+            "retrace" if channel.direction in RETRACE_DIRECTIONS else None
+        if side is not None:
+            out.setdefault(channel.name, {}).setdefault(side, channel)
+    return out
+
+
+def _one_direction(name: str, pair: dict) -> str:
+    have = next(iter(pair.values())).direction
+    return f"'{name}' has the {have} scan only; the diagnosis needs both directions (trace and retrace)"
+
+
+def pick_height_pair(afm: AfmFile, channel: str | None = None) -> tuple[Channel, Channel, str]:
+    """``(trace, retrace, description)``: the height channel's forward and backward scans.
+
+    ``channel`` (the vendor's name, case-insensitive) overrides the choice. Raises
+    :class:`ReaderError` with one line when the file has one direction only or no height channel.
+    """
+    label = afm.path.name
+    pairs = _pairs(afm.channels)
+    names = list(dict.fromkeys(c.name for c in afm.channels))
+    if channel is not None:
+        match = [n for n in pairs if n.lower() == channel.strip().lower()]
+        if not match:
+            raise ReaderError(f"{label}: no channel '{channel}' with a scan direction; channels: {names}")
+        pair = pairs[match[0]]
+        if len(pair) < 2:
+            raise ReaderError(f"{label}: {_one_direction(match[0], pair)}")
+        if pair["trace"].unit != "m":
+            raise ReaderError(f"{label}: channel '{match[0]}' is in '{pair['trace'].unit}', not a height in m")
+        chosen, reason = match[0], "named by --channel"
+    else:
+        heights = {n: p for n, p in pairs.items() if _rank(next(iter(p.values()))) is not None}
+        both = {n: p for n, p in heights.items() if len(p) == 2}
+        if not both:
+            if heights:
+                name, pair = next(iter(heights.items()))
+                raise ReaderError(f"{label}: {_one_direction(name, pair)}")
+            raise ReaderError(f"{label}: no height channel (a length in m with a scan direction) among {names}; "
+                              "name one with --channel")
+        chosen = min(both, key=lambda n: _rank(both[n]["trace"]))
+        reason = _REASONS[_rank(both[chosen]["trace"])]
+        pair = both[chosen]
+    trace, retrace = pair["trace"], pair["retrace"]
+    if trace.shape != retrace.shape:
+        raise ReaderError(f"{label}: '{chosen}' {trace.direction} and {retrace.direction} shapes differ: "
+                          f"{trace.shape} vs {retrace.shape}")
+    others = [n for n in pairs if n != chosen and _rank(next(iter(pairs[n].values()))) is not None]
+    also = f"; other height channels: {', '.join(others)}" if others else ""
+    return trace, retrace, (f"{label}: picked '{chosen}' {trace.direction}/{retrace.direction} ({reason}{also}), "
+                            f"{trace.shape[0]}×{trace.shape[1]} px")
