@@ -8,6 +8,7 @@ import pytest
 from scipy.signal import lfilter
 
 from afmsim.diagnosis import diagnose_loops, load_record, validate_diagnosis
+from afmsim.diagnosis.plausible import implausible
 from afmsim.diagnosis.validation import _dynamics, _plant, case_plan, excitation, make_case
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
@@ -63,6 +64,9 @@ def test_report_structure_and_figure(tmp_path):
     for e in rep["effects"]:
         assert {"name", "params", "heldout_shrink", "significant"} <= set(e)
     assert rep["verdict"] and rep["verdict"][0] == "drift"
+    assert rep["status"] in ("explained", "partly_explained", "unexplained")
+    for key in ("baseline", "final", "unexplained"):
+        assert rep[key]["gap_to_noise"] == pytest.approx(rep[key]["rms_gap"] / rep["baseline"]["noise_floor"], rel=1e-3)
     assert "Verdict" in summary and (tmp_path / "d.png").stat().st_size > 1000
 
 
@@ -106,4 +110,12 @@ def test_real_record():
     rep, summary = diagnose_loops(RECORD)
     assert rep["record"]["decimation"] > 1
     assert rep["baseline"]["rms_gap"] < 0.02 * rep["baseline"]["travel"]
-    assert isinstance(rep["verdict"], list)
+    # the baseline's held-out gap is several times the noise floor: "nothing missing" would be false
+    assert rep["baseline"]["gap_to_noise"] > 2.0 and rep["status"] != "nothing_missing"
+    assert "nothing significant is missing" not in summary
+    # a named effect is a finding only with a physical value (creep was once named at 11.6 %/decade)
+    params = {e["name"]: e["params"] for e in rep["effects"]}
+    assert all(implausible(c, params[c]) == [] for c in rep["findings"])
+    assert set(rep["findings"]) | {f["effect"] for f in rep["implausible"]} == set(rep["verdict"])
+    if rep["status"] in ("partly_explained", "unexplained"):
+        assert rep["unexplained"]["gap_to_noise"] > 2.0 and "time" in rep["unexplained"]["where"]

@@ -10,18 +10,16 @@ Protocol of :func:`diagnose_loops`:
 2. baseline = rate-independent hysteresis (relay Preisach grid, or play operators with
    ``baseline="symmetric"``) + offset + linear term, fitted on the training part;
 3. the held-out residual is localised (:func:`~afmsim.diagnosis.localise.localise`);
-4. greedy attribution: each remaining candidate is added to the current model, fitted on the
-   training part, and scored on the held-out part. The best one is accepted only if it is
-   *significant*: (a) its held-out RSS drops with ΔBIC < −6, BIC computed with an effective
-   sample count ``n_eff = n / L`` where L is the decorrelation length of the current held-out
-   residual (so autocorrelated model error does not count as independent evidence), with the
-   candidate's extra parameters as penalty; (b) at least 70 % of 10 contiguous held-out blocks
-   improve (a block test, robust to one lucky segment); (c) the held-out RMS drops by ≥ 3 %, and
-   by ≥ 15 % of the part of the current gap above the sensor-noise floor (σ from second
-   differences). Among the significant candidates the one with the most negative ΔBIC is added;
-   repeated while one is significant (at most 3 effects). ``heldout_shrink`` of an effect is the
-   shrink of the model it was last tried in (``added_to`` lists what that model already had);
-   ``heldout_shrink_alone`` is baseline + that effect only.
+4. greedy attribution by the shared engine (:mod:`~afmsim.diagnosis.engine`): each remaining
+   candidate is added to the current model, fitted on the training part, and scored on the
+   held-out part; the best significant one (:func:`~afmsim.diagnosis.engine.significance`, σ from
+   second differences of the record) is added, repeated while one is significant (at most 3
+   effects). ``heldout_shrink`` of an effect is the shrink of the model it was last tried in
+   (``added_to`` lists the effects that model already had); ``heldout_shrink_alone`` is baseline +
+   that effect only;
+5. status (``nothing_missing``/``explained``/``partly_explained``/``unexplained``), implausible
+   parameters and the unexplained remainder, as the engine defines them
+   (:func:`~afmsim.diagnosis.engine.conclude`).
 """
 
 from __future__ import annotations
@@ -32,49 +30,41 @@ import numpy as np
 
 from afmsim.reproducible import single_blas_thread
 
+from .engine import Front, Rules, attribute, conclude, effect_lines, noise_floor, ratio_text, rms, verdict_text
 from .localise import localise
 from .loops import LoopRecord, load_record
-from .model import Design, ModelSpec, fit_model
+from .model import Design, FittedModel, ModelSpec, fit_model
 
-__all__ = ["diagnose_loops", "diagnose_record", "noise_floor", "significance"]
+__all__ = ["diagnose_loops", "diagnose_record", "LoopFront"]
 
 TRAIN_FRACTION = 0.6
-MAX_EFFECTS = 3
+RULES = Rules(max_effects=3)
 
 
-def noise_floor(x) -> float:
-    """Robust white-noise σ of x from its second differences (σ_Δ² = √6·σ)."""
-    d2 = np.diff(x, 2)
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+class LoopFront(Front):
+    """The loop record's side of the engine: Preisach/PI baseline + candidate effects (:mod:`.model`)."""
 
+    def __init__(self, rec: LoopRecord, design: Design, held: np.ndarray, baseline: str):
+        self.rec, self.design, self.held, self.kind = rec, design, held, baseline
 
-def _decorrelation_length(r) -> float:
-    r = r - r.mean()
-    n = r.size
-    f = np.fft.rfft(r, 2 * n)
-    acf = np.fft.irfft(f * np.conj(f))[:n]
-    if acf[0] <= 0:
-        return 1.0
-    acf /= acf[0]
-    below = np.nonzero(acf < np.exp(-1))[0]
-    return float(max(1, below[0] if below.size else n))
+    def fit(self, effects: tuple, start=None) -> FittedModel:
+        return fit_model(self.design, ModelSpec(kind=self.kind, effects=tuple(effects)))
 
+    def residual(self, fitted: FittedModel) -> np.ndarray:
+        return self.rec.x - fitted.prediction
 
-def significance(r0, r1, sigma, k_extra, *, n_blocks=10) -> dict:
-    """Evidence that the candidate residual ``r1`` improves on ``r0`` (both held-out)."""
-    n = r0.size
-    rss0, rss1 = float(np.sum(r0**2)), float(np.sum(r1**2))
-    step = 1.0 - np.sqrt(rss1 / rss0) if rss0 > 0 else 0.0
-    n_eff = max(n / _decorrelation_length(r0), 5.0)
-    dbic = n_eff * np.log(max(rss1, 1e-300) / rss0) + k_extra * np.log(n_eff)
-    blocks = np.array_split(r0**2 - r1**2, n_blocks)
-    frac_pos = float(np.mean([b.mean() > 0 for b in blocks]))
-    excess = rss0 / n - sigma**2
-    gain = (rss0 - rss1) / n
-    ok = bool(dbic < -6 and frac_pos >= 0.7 and step >= 0.03 and excess > 0 and gain >= 0.15 * excess)
-    return {"step_shrink": float(step), "delta_bic": float(dbic), "n_eff": float(n_eff),
-            "blocks_improved": frac_pos, "gain_over_excess": float(gain / excess) if excess > 0 else 0.0,
-            "significant": ok}
+    def heldout_residual(self, fitted: FittedModel) -> np.ndarray:
+        return self.residual(fitted)[self.held]
+
+    def n_params(self, fitted: FittedModel) -> int:
+        return fitted.n_params
+
+    def effect_params(self, fitted: FittedModel, effect: str) -> dict:
+        return fitted.params.get(effect, {})
+
+    def localise(self, fitted: FittedModel) -> dict:
+        rec = self.rec
+        return localise(rec.t, rec.v, rec.x, self.residual(fitted), self.held)
 
 
 def _available(rec: LoopRecord, baseline: str) -> list[str]:
@@ -84,10 +74,6 @@ def _available(rec: LoopRecord, baseline: str) -> list[str]:
     if baseline == "symmetric":
         c.append("asymmetry")
     return c
-
-
-def _rms(a) -> float:
-    return float(np.sqrt(np.mean(a**2)))
 
 
 @single_blas_thread
@@ -109,88 +95,58 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                          "the record's excitation must repeat its range after the first 60 %")
     sigma = noise_floor(rec.x)
     modelled = tuple(m for m in modelled if m != "cross_coupling" or rec.y is not None)
-    base = fit_model(d, ModelSpec(kind=baseline, effects=modelled))
-    r_base = rec.x - base.prediction
-    rms_base = _rms(r_base[held])
-    where = localise(rec.t, rec.v, rec.x, r_base, held)
+    front = LoopFront(rec, d, held, baseline)
+    base = front.fit(modelled)
+    r_base = front.residual(base)
     avail = [c for c in (list(candidates) if candidates is not None else _available(rec, baseline)) if c not in modelled]
-    current, cur_fit, cur_r = modelled, base, r_base
-    evaluations: dict[str, dict] = {}
-    first_round = True
-    for _ in range(MAX_EFFECTS):
-        remaining = [c for c in avail if c not in current]
-        if not remaining:
-            break
-        trial = {}
-        for c in remaining:
-            fm = fit_model(d, ModelSpec(kind=baseline, effects=current + (c,)))
-            r1 = rec.x - fm.prediction
-            sig = significance(cur_r[held], r1[held], sigma, max(fm.n_params - cur_fit.n_params, 1))
-            trial[c] = (fm, r1, sig)
-            evaluations[c] = {"name": c, "params": fm.params.get(c, {}),
-                              "heldout_shrink": round(1.0 - _rms(r1[held]) / rms_base, 4) if rms_base > 0 else 0.0,
-                              "significant": False, "test": {k: (round(v, 4) if isinstance(v, float) else v)
-                                                             for k, v in sig.items()}, "added_to": list(current)}
-        if first_round:
-            for c in remaining:
-                evaluations[c]["heldout_shrink_alone"] = evaluations[c]["heldout_shrink"]
-            first_round = False
-        sig_ok = [c for c in remaining if trial[c][2]["significant"]]
-        if not sig_ok:
-            break
-        best = min(sig_ok, key=lambda c: trial[c][2]["delta_bic"])  # strongest evidence first
-        fm, r1, sig = trial[best]
-        evaluations[best]["significant"] = True
-        current, cur_fit, cur_r = current + (best,), fm, r1
-    # final parameters of accepted effects come from the final joint fit
-    verdict = [c for c in current if c not in modelled]
-    for c in verdict:
-        evaluations[c]["params"] = cur_fit.params.get(c, {})
-    effects = [evaluations[c] for c in avail if c in evaluations]
+    att = attribute(front, avail, sigma, modelled=modelled, rules=RULES, baseline=base)
+    outcome = conclude(front, att, sigma)
     report = {
         "record": {"source": rec.source, "samples": n, "sample_interval_s": rec.dt, "decimation": rec.decimation,
                    "duration_s": float(rec.t[-1] - rec.t[0]), "train_fraction": train_fraction,
                    "heldout_from_s": float(rec.t[~train][0]),
                    "heldout_scored_fraction": round(float(held.sum() / (~train).sum()), 4), "has_cross_axis": rec.y is not None},
+        "status": outcome["status"],
         "baseline": {"model": "relay Preisach grid (asymmetric)" if baseline == "preisach" else
-                     "play operators (symmetric PI)", "rms_gap": rms_base, "unit": "m",
-                     "train_rms": _rms(r_base[train]), "noise_floor": sigma,
+                     "play operators (symmetric PI)", "rms_gap": rms(r_base[held]), "unit": "m",
+                     "gap_to_noise": outcome["baseline_gap"]["gap_to_noise"],
+                     "train_rms": rms(r_base[train]), "noise_floor": sigma,
                      "travel": float(np.ptp(rec.x)), "modelled": list(modelled)},
-        "where": where,
-        "effects": effects,
-        "verdict": verdict,
-        "final": {"rms_gap": _rms(cur_r[held]), "heldout_shrink": round(1.0 - _rms(cur_r[held]) / rms_base, 4)
-                  if rms_base > 0 else 0.0},
+        "where": front.localise(base),
+        "effects": [att.evaluations[c] for c in avail if c in att.evaluations],
+        "verdict": outcome["verdict"],
+        "findings": outcome["findings"],
+        "implausible": outcome["implausible"],
+        "final": outcome["final"],
+        "unexplained": outcome["unexplained"],
     }
-    summary = _summary(report)
+    summary = loop_summary(report)
     if figure_path is not None:
-        plot_diagnosis(rec, r_base, cur_r, held, figure_path, title=", ".join(verdict) or "nothing missing")
+        plot_diagnosis(rec, r_base, front.residual(att.final), held, figure_path,
+                       title=f"{report['status']}: " + (", ".join(outcome["verdict"]) or "no effect named"))
         report["figure"] = str(figure_path)
-    return report, summary, {"design": d, "baseline": base, "final": cur_fit, "held": held}
+    return report, summary, {"design": d, "baseline": base, "final": att.final, "held": held}
 
 
-def _summary(rep: dict) -> str:
+def where_text(w: dict) -> str:
+    """One line on where a loop record's held-out gap lies."""
+    return ("time early/late {:.0%}/{:.0%}; holds {:.0%} of gap on {:.0%} of samples; "
+            "rising/falling {:.0%}/{:.0%}; below-excitation frequencies {:.0%}.".format(
+                w["time"]["early"]["share"], w["time"]["late"]["share"], w["motion"]["hold"]["share"],
+                w["motion"]["hold"]["sample_fraction"], w["branch"]["rising"]["share"],
+                w["branch"]["falling"]["share"], w["frequency"]["below_excitation"]))
+
+
+def loop_summary(rep: dict) -> str:
+    """Terminal summary of a loop diagnosis report."""
     b = rep["baseline"]
     lines = [f"Baseline ({b['model']}): held-out RMS gap {b['rms_gap'] * 1e9:.1f} nm "
-             f"({100 * b['rms_gap'] / (b['travel'] or 1):.2f} % of travel; noise floor {b['noise_floor'] * 1e9:.1f} nm)."]
-    w = rep["where"]
-    lines.append("Where: time early/late {:.0%}/{:.0%}; holds {:.0%} of gap on {:.0%} of samples; "
-                 "rising/falling {:.0%}/{:.0%}; below-excitation frequencies {:.0%}.".format(
-                     w["time"]["early"]["share"], w["time"]["late"]["share"], w["motion"]["hold"]["share"],
-                     w["motion"]["hold"]["sample_fraction"], w["branch"]["rising"]["share"],
-                     w["branch"]["falling"]["share"], w["frequency"]["below_excitation"]))
-    for e in rep["effects"]:
-        lines.append(f"  {e['name']:<15} shrink {e['heldout_shrink']:+.1%}  ΔBIC {e['test']['delta_bic']:+.1f}  "
-                     f"{'SIGNIFICANT' if e['significant'] else 'not significant'}  {_fmt_params(e['params'])}")
-    v = rep["verdict"]
-    lines.append("Verdict: the model is missing " + ", then ".join(v) + f" (held-out gap shrinks "
-                 f"{rep['final']['heldout_shrink']:.0%})." if v else "Verdict: nothing significant is missing.")
+             f"({100 * b['rms_gap'] / (b['travel'] or 1):.2f} % of travel; noise floor {b['noise_floor'] * 1e9:.1f} nm, "
+             f"gap {ratio_text(b['gap_to_noise'])} the noise)."]
+    lines.append("Where: " + where_text(rep["where"]))
+    lines += effect_lines(rep["effects"])
+    lines.append(verdict_text(rep, where_text))
     return "\n".join(lines)
-
-
-def _fmt_params(p: dict) -> str:
-    keep = {k: v for k, v in p.items() if isinstance(v, (int, float))}
-    return ", ".join(f"{k}={v:.3g}" for k, v in keep.items())
 
 
 def plot_diagnosis(rec: LoopRecord, r_before, r_after, held, path, *, title="") -> Path:

@@ -11,7 +11,7 @@ Protocol of :func:`diagnose_images` (the image twin of :func:`~afmsim.diagnosis.
    scenario's tip and Z loop (ideal without a scenario), plus every effect the scenario already
    switches on (fitted); heights are compared line-levelled;
 3. the held-out residual is localised (:func:`~afmsim.diagnosis.image_localise.localise_image`);
-4. greedy attribution as for loops, with the same test (:func:`~afmsim.diagnosis.attribute.significance`:
+4. greedy attribution by the engine shared with loops (:mod:`~afmsim.diagnosis.engine`), with the same test (:func:`~afmsim.diagnosis.engine.significance`:
    ΔBIC on the correlation-discounted held-out sample count with the candidate's extra parameters,
    ≥ 70 % of 10 held-out blocks improved, ≥ 3 % RMS drop and ≥ 15 % of the gap above the noise
    floor, σ from second differences of the baseline's training residual). Images are almost
@@ -22,7 +22,9 @@ Protocol of :func:`diagnose_images` (the image twin of :func:`~afmsim.diagnosis.
    Effects whose signature the current model already has (:func:`~afmsim.diagnosis.image_fit.redundancy`
    < 0.05) are not fitted but reported ``indistinguishable_from``; ties within 2 BIC units go to the
    first name in canonical order (``ambiguous_with`` lists the others). Every remaining candidate is
-   tried again in each round: a large effect can mask a smaller one until it is modelled.
+   tried again in each round: a large effect can mask a smaller one until it is modelled;
+5. status, implausible parameters and the unexplained remainder as the engine defines them
+   (:func:`~afmsim.diagnosis.engine.conclude`).
 
 Identifiability. With the ``trace`` reference (no known sample) the trace is the reference, so
 ``drift``, ``cross_coupling`` and ``tip``, which move or reshape trace and retrace alike, cannot
@@ -40,7 +42,7 @@ import numpy as np
 
 from afmsim.reproducible import single_blas_thread
 
-from .attribute import noise_floor, significance
+from .engine import Front, Rules, attribute, conclude, effect_lines, noise_floor, ratio_text, rms, verdict_text
 from .image_fit import ImageDesign, ImageFit, fit_image, redundancy
 from .image_localise import localise_image
 from .image_model import Layout, ZLoop
@@ -49,14 +51,13 @@ from .images import ImageRecord, load_images
 from .scenario_effects import as_scenario, modelled_effects
 
 __all__ = ["diagnose_images", "diagnose_image_record", "build_design", "split_lines", "effect_params",
-           "IMAGE_CANDIDATES", "MAX_EFFECTS"]
+           "IMAGE_CANDIDATES", "ImageFront"]
 
 IMAGE_CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "tip", "z_feedback", "asymmetry")
-MAX_EFFECTS = 3
-REDUNDANT = 0.05  # a candidate whose signature the model already has to 95 % is not fitted
-MIN_BASELINE_SHARE = 0.005  # an effect must remove ≥ 0.5 % of the baseline's held-out mean square
-MIN_STEP = 0.2  # ... and ≥ 20 % of the current held-out RMS gap
-TIE_BIC = 2.0  # ΔBIC within this of the best: equal evidence, the earlier canonical name is taken
+#: a candidate whose signature the model already has to 95 % is not fitted; an effect must remove
+#: ≥ 0.5 % of the baseline's held-out mean square and ≥ 20 % of the current held-out RMS gap; ΔBIC
+#: within 2 of the best is equal evidence (the earlier canonical name is taken)
+RULES = Rules(max_effects=3, min_step=0.2, min_baseline_share=0.005, tie_bic=2.0, redundant=0.05)
 NOT_IDENTIFIABLE_WITHOUT_SAMPLE = {
     "drift": "moves trace and retrace alike: needs a known sample (--scenario)",
     "cross_coupling": "moves trace and retrace alike: needs a known sample (--scenario)",
@@ -136,8 +137,35 @@ def _held_rows(design: ImageDesign, fit: ImageFit, lines) -> np.ndarray:
     return design.rows(lines, rec.trace - fit.trace, rec.retrace - fit.retrace)
 
 
-def _rms(a) -> float:
-    return float(np.sqrt(np.mean(np.square(a))))
+class ImageFront(Front):
+    """The image pair's side of the engine: the raster forward model fitted by :func:`fit_image`."""
+
+    def __init__(self, design: ImageDesign):
+        self.design = design
+
+    def fit(self, effects: tuple, start=None) -> ImageFit:
+        return fit_image(self.design, effects, start=start)
+
+    def refresh(self, effects: tuple, fitted: ImageFit) -> ImageFit:
+        # continue the accepted model's fit, so a candidate is not credited with its convergence
+        return fit_image(self.design, effects, start=fitted)
+
+    def heldout_residual(self, fitted: ImageFit) -> np.ndarray:
+        return _held_rows(self.design, fitted, self.design.held)
+
+    def n_params(self, fitted: ImageFit) -> int:
+        return fitted.n_params
+
+    def effect_params(self, fitted: ImageFit, effect: str) -> dict:
+        return effect_params(self.design, fitted, effect)
+
+    def localise(self, fitted: ImageFit) -> dict:
+        d = self.design
+        return localise_image(*_images_residual(d, fitted), fitted.trace, fitted.retrace, d.record.trace, d.held,
+                              with_trace=d.kind == "scenario")
+
+    def redundancy(self, fitted: ImageFit, effect: str) -> float:
+        return redundancy(self.design, fitted, effect)
 
 
 def _candidates(design: ImageDesign, modelled) -> tuple[list[str], dict]:
@@ -154,55 +182,6 @@ def _candidates(design: ImageDesign, modelled) -> tuple[list[str], dict]:
     return out, skipped
 
 
-def _greedy(design: ImageDesign, base: ImageFit, modelled: tuple, avail: list, sigma: float):
-    """Greedy, significance-tested attribution; returns the accepted effects (modelled first), the final
-    fit, its held-out residual and the per-candidate evaluations."""
-    held = design.held
-    r_base = _held_rows(design, base, held)
-    rms_base = _rms(r_base)
-    current, cur_fit, cur_r = tuple(modelled), base, r_base
-    evaluations: dict[str, dict] = {}
-    for round_no in range(MAX_EFFECTS):
-        remaining = [c for c in avail if c not in current]
-        if not remaining:
-            break
-        if round_no:  # continue the accepted model's fit, so a candidate is not credited with its convergence
-            cur_fit = fit_image(design, current, start=cur_fit)
-            cur_r = _held_rows(design, cur_fit, held)
-        trial = {}
-        for c in remaining:
-            if redundancy(design, cur_fit, c) < REDUNDANT:
-                evaluations.setdefault(c, {"name": c, "params": {}, "heldout_shrink": 0.0, "significant": False,
-                                           "test": {"delta_bic": 0.0}})
-                evaluations[c]["indistinguishable_from"] = [e for e in current if e not in modelled] or ["baseline"]
-                continue
-            fit = fit_image(design, current + (c,), start=cur_fit)
-            r1 = _held_rows(design, fit, held)
-            test = significance(cur_r, r1, sigma, max(fit.n_params - cur_fit.n_params, 1))
-            test["baseline_share"] = float((np.mean(cur_r**2) - np.mean(r1**2)) / np.mean(r_base**2))
-            test["significant"] = bool(test["significant"] and test["baseline_share"] >= MIN_BASELINE_SHARE
-                                       and test["step_shrink"] >= MIN_STEP)
-            trial[c] = (fit, r1, test)
-            entry = {"name": c, "params": effect_params(design, fit, c),
-                     "heldout_shrink": round(1.0 - _rms(r1) / rms_base, 4) if rms_base > 0 else 0.0,
-                     "significant": False, "added_to": [e for e in current if e not in modelled],
-                     "test": {k: (round(v, 4) if isinstance(v, float) else v) for k, v in test.items()}}
-            if round_no == 0:
-                entry["heldout_shrink_alone"] = entry["heldout_shrink"]
-            evaluations[c] = {**evaluations.get(c, {}), **entry}
-        passed = [c for c in trial if trial[c][2]["significant"]]
-        if not passed:
-            break
-        top = min(trial[c][2]["delta_bic"] for c in passed)
-        tied = [c for c in passed if trial[c][2]["delta_bic"] <= top + TIE_BIC]  # equal evidence: canonical order
-        cur_fit, cur_r = trial[tied[0]][0], trial[tied[0]][1]
-        current = current + (tied[0],)
-        evaluations[tied[0]]["significant"] = True
-        if len(tied) > 1:
-            evaluations[tied[0]]["ambiguous_with"] = tied[1:]
-    return current, cur_fit, cur_r, evaluations
-
-
 @single_blas_thread
 def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str = "auto", baseline: str = "asymmetric",
                           candidates=None, figure_path=None) -> tuple[dict, str, dict]:
@@ -212,16 +191,14 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
     """
     design = build_design(record, scenario, reference=reference, baseline=baseline)
     modelled = modelled_effects(scenario)
-    base = fit_image(design, modelled)
-    rms_base = _rms(_held_rows(design, base, design.held))
+    front = ImageFront(design)
+    base = front.fit(modelled)
     sigma = noise_floor(_held_rows(design, base, design.train))
     avail, skipped = _candidates(design, modelled)
     if candidates is not None:
         avail = [c for c in candidates if c in avail]
-    current, final, r_final, evaluations = _greedy(design, base, modelled, avail, sigma)
-    verdict = [c for c in current if c not in modelled]
-    for c in verdict:
-        evaluations[c]["params"] = effect_params(design, final, c)
+    att = attribute(front, avail, sigma, modelled=modelled, rules=RULES, baseline=base)
+    outcome = conclude(front, att, sigma)
     block = max(2, record.shape[0] // 16)
     report = {
         "images": {"source": record.source, "lines": record.shape[0], "pixels": record.shape[1],
@@ -230,25 +207,29 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
                    "train_lines": int(design.train.sum()), "heldout_lines": int(design.held.sum()),
                    "split": f"blocks of {block} lines from line 1, the 2nd and 4th of every 5 held out; line 0 "
                             "(after the approach) in neither"},
+        "status": outcome["status"],
         "baseline": {"model": f"{design.baseline} rate-independent hysteresis per scan direction (Legendre), "
                               f"slow-axis scale, {design.kind} reference, "
                               f"{'scenario Z loop' if design.z_loop else 'ideal Z loop'}",
-                     "modelled": list(modelled), "rms_gap": rms_base, "unit": "m",
-                     "train_rms": _rms(_held_rows(design, base, design.train)), "noise_floor": sigma,
+                     "modelled": list(modelled), "rms_gap": rms(front.heldout_residual(base)), "unit": "m",
+                     "gap_to_noise": outcome["baseline_gap"]["gap_to_noise"],
+                     "train_rms": rms(_held_rows(design, base, design.train)), "noise_floor": sigma,
                      "height_range": float(np.ptp(record.trace)), "params": _baseline_params(design, base)},
-        "where": localise_image(*_images_residual(design, base), base.trace, base.retrace, record.trace, design.held,
-                                with_trace=design.kind == "scenario"),
-        "effects": [evaluations[c] for c in avail if c in evaluations],
+        "where": front.localise(base),
+        "effects": [att.evaluations[c] for c in avail if c in att.evaluations],
         "not_identifiable": skipped,
-        "verdict": verdict,
-        "final": {"rms_gap": _rms(r_final),
-                  "heldout_shrink": round(1.0 - _rms(r_final) / rms_base, 4) if rms_base > 0 else 0.0},
+        "verdict": outcome["verdict"],
+        "findings": outcome["findings"],
+        "implausible": outcome["implausible"],
+        "final": outcome["final"],
+        "unexplained": outcome["unexplained"],
     }
     summary = image_summary(report)
     if figure_path is not None:
-        plot_image_diagnosis(design, base, final, figure_path, title=", ".join(verdict) or "nothing missing")
+        plot_image_diagnosis(design, base, att.final, figure_path,
+                             title=f"{report['status']}: " + (", ".join(outcome["verdict"]) or "no effect named"))
         report["figure"] = str(figure_path)
-    return report, summary, {"design": design, "baseline": base, "final": final}
+    return report, summary, {"design": design, "baseline": base, "final": att.final}
 
 
 def _images_residual(design: ImageDesign, fit: ImageFit):
@@ -270,35 +251,29 @@ def _baseline_params(design: ImageDesign, fit: ImageFit) -> dict:
     return out
 
 
-def image_summary(rep: dict) -> str:
-    """Terminal summary of an image diagnosis report."""
-    b, w = rep["baseline"], rep["where"]
-    lines = [f"Baseline ({b['model']}): held-out RMS gap {b['rms_gap'] * 1e9:.2f} nm "
-             f"({100 * b['rms_gap'] / (b['height_range'] or 1):.2f} % of the height range; noise floor "
-             f"{b['noise_floor'] * 1e9:.2f} nm)."]
+def where_text(w: dict) -> str:
+    """One line on where an image pair's held-out gap lies."""
     parts = [f"slow/fast axis {w['axis']['slow']['share']:.0%}/{w['axis']['fast']['share']:.0%}",
              f"edges {w['features']['edges']['share']:.0%} of gap on {w['features']['edges']['sample_fraction']:.0%} of pixels",
              "left/centre/right {:.0%}/{:.0%}/{:.0%}".format(*(w["position"][k]["share"] for k in ("left", "centre", "right"))),
              f"early/late lines {w['time']['early']['share']:.0%}/{w['time']['late']['share']:.0%}"]
     if "direction" in w:
         parts.insert(0, f"trace/retrace {w['direction']['trace']['share']:.0%}/{w['direction']['retrace']['share']:.0%}")
-    lines.append("Where: " + "; ".join(parts) + ".")
-    for e in rep["effects"]:
-        notes = "".join(f"  [{label} {', '.join(e[key])}]" for key, label in
-                        (("ambiguous_with", "as good:"), ("indistinguishable_from", "indistinguishable from"))
-                        if key in e)
-        lines.append(f"  {e['name']:<15} shrink {e['heldout_shrink']:+.1%}  ΔBIC {e['test']['delta_bic']:+.1f}  "
-                     f"{'SIGNIFICANT' if e['significant'] else 'not significant'}  {_fmt(e['params'])}{notes}")
+    return "; ".join(parts) + "."
+
+
+def image_summary(rep: dict) -> str:
+    """Terminal summary of an image diagnosis report."""
+    b = rep["baseline"]
+    lines = [f"Baseline ({b['model']}): held-out RMS gap {b['rms_gap'] * 1e9:.2f} nm "
+             f"({100 * b['rms_gap'] / (b['height_range'] or 1):.2f} % of the height range; noise floor "
+             f"{b['noise_floor'] * 1e9:.2f} nm, gap {ratio_text(b['gap_to_noise'])} the noise)."]
+    lines.append("Where: " + where_text(rep["where"]))
+    lines += effect_lines(rep["effects"])
     for name, why in rep["not_identifiable"].items():
         lines.append(f"  {name:<15} not identifiable: {why}")
-    v = rep["verdict"]
-    lines.append("Verdict: the model is missing " + ", then ".join(v) + f" (held-out gap shrinks "
-                 f"{rep['final']['heldout_shrink']:.0%})." if v else "Verdict: nothing significant is missing.")
+    lines.append(verdict_text(rep, where_text))
     return "\n".join(lines)
-
-
-def _fmt(p: dict) -> str:
-    return ", ".join(f"{k}={v:.3g}" for k, v in p.items() if isinstance(v, (int, float)))
 
 
 def plot_image_diagnosis(design: ImageDesign, before: ImageFit, after: ImageFit, path, *, title="") -> Path:

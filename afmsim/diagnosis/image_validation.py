@@ -37,6 +37,7 @@ from afmsim.scenario import parse_scenario
 from afmsim.stage import default_stage
 from afmsim.tip import dilate, mlct_tip
 
+from .engine import STATUSES
 from .image_attribute import build_design, diagnose_image_record
 from .image_fit import fit_image
 from .images import load_images
@@ -178,7 +179,8 @@ def score_image_case(case: dict) -> dict:
     out = {"effects": case["effects"], "sample": case["scenario"].sample.kind,
            "line_rate_hz": round(case["scenario"].scan.line_rate_hz, 3), "verdict": verdict,
            "ambiguous_with": {e["name"]: e["ambiguous_with"] for e in rep["effects"] if "ambiguous_with" in e},
-           "seconds": round(elapsed, 2), "baseline_rms_gap_m": rep["baseline"]["rms_gap"]}
+           "seconds": round(elapsed, 2), "baseline_rms_gap_m": rep["baseline"]["rms_gap"], "status": rep["status"],
+           "gap_to_noise": rep["baseline"]["gap_to_noise"], "implausible": [f["effect"] for f in rep["implausible"]]}
     out["top1"] = (verdict == []) if not true else (bool(verdict) and verdict[0] in true)
     out["exact"] = set(verdict) == set(true)
     if true:
@@ -226,6 +228,7 @@ def validate_image_diagnosis(n_cases: int = 32, seed: int = 0, pixels: int = 64)
         "exact_set_accuracy": float(np.mean([c["exact"] for c in cases])),
         "null_cases": len(nulls),
         "false_alarm_rate": float(np.mean([bool(c["verdict"]) for c in nulls])) if nulls else None,
+        "null_status_counts": {k: sum(c["status"] == k for c in nulls) for k in STATUSES},
         "param_cases": len(rel),
         "param_median_rel_error": float(np.median(rel)) if rel else None,
         "param_within_25pct": float(np.mean(np.asarray(rel) <= 0.25)) if rel else None,

@@ -37,6 +37,7 @@ from scipy.signal import bilinear, butter, fftconvolve, lfilter, sosfiltfilt
 from afmsim.stage import AsymmetricPreisach, AxisParams, PiezoAxis
 
 from .attribute import diagnose_record
+from .engine import STATUSES
 from .loops import load_record
 from .model import Design, ModelSpec, fit_model
 
@@ -211,7 +212,9 @@ def _score_case(case: dict) -> dict:
     verdict = rep["verdict"]
     true = list(case["effects"])
     out = {"effects": true, "excitation": case["excitation"], "fs": case["fs"], "samples": rec.n,
-           "decimation": rec.decimation, "verdict": verdict, "seconds": round(elapsed, 3)}
+           "decimation": rec.decimation, "verdict": verdict, "status": rep["status"],
+           "gap_to_noise": rep["baseline"]["gap_to_noise"], "implausible": [f["effect"] for f in rep["implausible"]],
+           "seconds": round(elapsed, 3)}
     out["top1"] = (verdict == []) if not true else (bool(verdict) and verdict[0] in true)
     out["exact"] = set(verdict) == set(true)
     held, d = internals["held"], internals["design"]
@@ -283,6 +286,7 @@ def validate_diagnosis(n_cases: int = 30, seed: int = 0) -> dict:
         "exact_set_accuracy": float(np.mean([c["exact"] for c in cases])),
         "null_cases": len(nulls),
         "false_alarm_rate": float(np.mean([bool(c["verdict"]) for c in nulls])) if nulls else None,
+        "null_status_counts": {k: sum(c["status"] == k for c in nulls) for k in STATUSES},
         "top1_accuracy_detectable": float(np.mean([c["top1"] for c in detectable + nulls])),
         "undetectable_cases": len(eff) - len(detectable),
         "param_cases": len(rel),

@@ -1,0 +1,300 @@
+"""The attribution engine shared by the loop and the image diagnosis.
+
+A *front* (loops: :mod:`.attribute`, images: :mod:`.image_attribute`) supplies its data model, its
+candidates and its plots through the small :class:`Front` interface; the engine does the rest:
+
+1. greedy attribution (:func:`attribute`): every remaining candidate is added to the current
+   model, fitted on the training part and scored on the held-out part; the significant one with
+   the most negative ΔBIC is accepted (ties within ``Rules.tie_bic``: the first in canonical
+   order), repeated while one is significant (at most ``Rules.max_effects``);
+2. the significance test (:func:`significance`);
+3. plausibility: an accepted effect whose fitted parameter lies outside its physical range
+   (:mod:`.plausible`) is *implausible* — it absorbs another mismatch and is not a finding;
+4. the status (:func:`conclude`), from the held-out RMS gap relative to the sensor-noise floor σ,
+   ``gap_to_noise = rms_gap / σ``, with ``HONEST_FACTOR`` = 2:
+
+   * ``nothing_missing`` — no finding, and the baseline's gap is within 2σ;
+   * ``unexplained`` — no finding, and the baseline's gap is above 2σ;
+   * ``explained`` — findings, and the model with them is within 2σ;
+   * ``partly_explained`` — findings, and the rest is above 2σ.
+
+   The ``unexplained`` block gives what is left after the findings: its RMS, ``gap_to_noise``,
+   ``share_left`` (RMS left / baseline RMS), ``excess_share_left`` (mean square above σ² left /
+   the baseline's) and where it lies (the front's localisation, as ``where``);
+5. the verdict sentence and the effect lines of the terminal summary (:func:`verdict_text`,
+   :func:`effect_lines`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .plausible import implausible
+
+__all__ = ["Front", "Rules", "Attribution", "attribute", "significance", "noise_floor", "conclude",
+           "verdict_text", "effect_lines", "ratio_text", "rms", "HONEST_FACTOR", "STATUSES"]
+
+HONEST_FACTOR = 2.0
+STATUSES = ("nothing_missing", "explained", "partly_explained", "unexplained")
+
+
+def rms(a) -> float:
+    return float(np.sqrt(np.mean(np.square(a))))
+
+
+def noise_floor(x) -> float:
+    """Robust white-noise σ of x from its second differences (σ_Δ² = √6·σ)."""
+    d2 = np.diff(np.asarray(x, dtype=float), 2)
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+
+
+def _decorrelation_length(r) -> float:
+    r = r - r.mean()
+    n = r.size
+    f = np.fft.rfft(r, 2 * n)
+    acf = np.fft.irfft(f * np.conj(f))[:n]
+    if acf[0] <= 0:
+        return 1.0
+    acf /= acf[0]
+    below = np.nonzero(acf < np.exp(-1))[0]
+    return float(max(1, below[0] if below.size else n))
+
+
+def significance(r0, r1, sigma, k_extra, *, n_blocks=10) -> dict:
+    """Evidence that the candidate's held-out residual ``r1`` improves on the current ``r0``.
+
+    Significant when (a) ΔBIC < −6, BIC on the effective sample count ``n_eff = n / L`` (L: the
+    decorrelation length of ``r0``, so autocorrelated model error is not independent evidence) with
+    ``k_extra`` parameters as penalty; (b) ≥ 70 % of ``n_blocks`` contiguous held-out blocks improve;
+    (c) the RMS drops by ≥ 3 % and by ≥ 15 % of the part of the current gap above the noise σ.
+    """
+    n = r0.size
+    rss0, rss1 = float(np.sum(r0**2)), float(np.sum(r1**2))
+    step = 1.0 - np.sqrt(rss1 / rss0) if rss0 > 0 else 0.0
+    n_eff = max(n / _decorrelation_length(r0), 5.0)
+    dbic = n_eff * np.log(max(rss1, 1e-300) / rss0) + k_extra * np.log(n_eff)
+    blocks = np.array_split(r0**2 - r1**2, n_blocks)
+    frac_pos = float(np.mean([b.mean() > 0 for b in blocks]))
+    excess = rss0 / n - sigma**2
+    gain = (rss0 - rss1) / n
+    ok = bool(dbic < -6 and frac_pos >= 0.7 and step >= 0.03 and excess > 0 and gain >= 0.15 * excess)
+    return {"step_shrink": float(step), "delta_bic": float(dbic), "n_eff": float(n_eff),
+            "blocks_improved": frac_pos, "gain_over_excess": float(gain / excess) if excess > 0 else 0.0,
+            "significant": ok}
+
+
+@dataclass(frozen=True)
+class Rules:
+    """Acceptance rules beyond :func:`significance` (a front's practical-significance knobs).
+
+    ``min_step``: the effect must shrink the current held-out RMS by at least this fraction;
+    ``min_baseline_share``: ... and remove at least this share of the baseline's held-out mean square;
+    ``tie_bic``: ΔBIC within this of the best is equal evidence (the earlier canonical name wins);
+    ``redundant``: candidates whose :meth:`Front.redundancy` is below this are not fitted.
+    """
+
+    max_effects: int = 3
+    min_step: float = 0.0
+    min_baseline_share: float = 0.0
+    tie_bic: float = 0.0
+    redundant: float = 0.0
+
+
+class Front:
+    """What a diagnosis front supplies. ``fit(effects, start)`` returns a fitted model (any object)."""
+
+    def fit(self, effects: tuple, start=None):
+        raise NotImplementedError
+
+    def heldout_residual(self, fitted) -> np.ndarray:
+        """Residual (data − model) on the scored held-out samples, 1-D."""
+        raise NotImplementedError
+
+    def n_params(self, fitted) -> int:
+        raise NotImplementedError
+
+    def effect_params(self, fitted, effect: str) -> dict:
+        raise NotImplementedError
+
+    def localise(self, fitted) -> dict:
+        """Where the held-out gap of ``fitted`` lies (the report's ``where``)."""
+        raise NotImplementedError
+
+    def refresh(self, effects: tuple, fitted):
+        """The accepted model at the start of a later round (default: as accepted)."""
+        return fitted
+
+    def redundancy(self, fitted, effect: str) -> float:
+        """Share of ``effect``'s signature that ``fitted`` cannot produce (1: fully new)."""
+        return 1.0
+
+
+@dataclass
+class Attribution:
+    """Outcome of :func:`attribute`: accepted effects (in order, without the modelled ones), fits, evaluations."""
+
+    modelled: tuple
+    accepted: tuple
+    baseline: object
+    final: object
+    evaluations: dict = field(default_factory=dict)
+
+
+def _round(test: dict) -> dict:
+    return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in test.items()}
+
+
+def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rules = Rules(), baseline=None) -> Attribution:
+    """Greedy, significance-tested attribution over ``candidates`` (canonical order) on top of
+    ``baseline`` (the front's fit of ``modelled``; fitted here when None)."""
+    modelled = tuple(modelled)
+    base = front.fit(modelled) if baseline is None else baseline
+    r_base = front.heldout_residual(base)
+    rms_base = rms(r_base)
+    ms_base = float(np.mean(r_base**2))
+    current, cur_fit, cur_r = modelled, base, r_base
+    evaluations: dict[str, dict] = {}
+    for round_no in range(rules.max_effects):
+        remaining = [c for c in candidates if c not in current]
+        if not remaining:
+            break
+        if round_no:
+            cur_fit = front.refresh(current, cur_fit)
+            cur_r = front.heldout_residual(cur_fit)
+        added_to = [e for e in current if e not in modelled]
+        trial = {}
+        for c in remaining:
+            if front.redundancy(cur_fit, c) < rules.redundant:
+                evaluations.setdefault(c, {"name": c, "params": {}, "heldout_shrink": 0.0, "significant": False,
+                                           "test": {"delta_bic": 0.0}})
+                evaluations[c]["indistinguishable_from"] = added_to or ["baseline"]
+                continue
+            fit = front.fit(current + (c,), cur_fit)
+            r1 = front.heldout_residual(fit)
+            test = significance(cur_r, r1, sigma, max(front.n_params(fit) - front.n_params(cur_fit), 1))
+            if rules.min_step or rules.min_baseline_share:
+                test["baseline_share"] = float((np.mean(cur_r**2) - np.mean(r1**2)) / ms_base) if ms_base > 0 else 0.0
+                test["significant"] = bool(test["significant"] and test["baseline_share"] >= rules.min_baseline_share
+                                           and test["step_shrink"] >= rules.min_step)
+            trial[c] = (fit, r1, test)
+            entry = {"name": c, "params": front.effect_params(fit, c),
+                     "heldout_shrink": round(1.0 - rms(r1) / rms_base, 4) if rms_base > 0 else 0.0,
+                     "significant": False, "added_to": added_to, "test": _round(test)}
+            if round_no == 0:
+                entry["heldout_shrink_alone"] = entry["heldout_shrink"]
+            evaluations[c] = {**evaluations.get(c, {}), **entry}
+        passed = [c for c in trial if trial[c][2]["significant"]]
+        if not passed:
+            break
+        top = min(trial[c][2]["delta_bic"] for c in passed)
+        tied = [c for c in passed if trial[c][2]["delta_bic"] <= top + rules.tie_bic]  # canonical order
+        cur_fit, cur_r = trial[tied[0]][0], trial[tied[0]][1]
+        current = current + (tied[0],)
+        evaluations[tied[0]]["significant"] = True
+        if len(tied) > 1:
+            evaluations[tied[0]]["ambiguous_with"] = tied[1:]
+    accepted = tuple(c for c in current if c not in modelled)
+    for c in accepted:  # parameters of accepted effects come from the final joint fit
+        evaluations[c]["params"] = front.effect_params(cur_fit, c)
+    return Attribution(modelled, accepted, base, cur_fit, evaluations)
+
+
+def _gap(front: Front, fitted, sigma: float, rms_base: float) -> dict:
+    g = rms(front.heldout_residual(fitted))
+    return {"rms_gap": g, "gap_to_noise": round(g / sigma, 3) if sigma > 0 else None,
+            "heldout_shrink": round(1.0 - g / rms_base, 4) if rms_base > 0 else 0.0}
+
+
+def _within(gap: dict) -> bool:
+    return gap["gap_to_noise"] is not None and gap["gap_to_noise"] <= HONEST_FACTOR
+
+
+def conclude(front: Front, att: Attribution, sigma: float) -> dict:
+    """Status, implausible flags, final gap and the unexplained remainder (report entries).
+
+    Returns ``{"status", "verdict", "findings", "implausible", "baseline_gap", "final",
+    "unexplained"}``: ``verdict`` lists every accepted effect, ``findings`` those with plausible
+    parameters; the status and the remainder are those of the model with the findings only
+    (refitted when an implausible effect is set aside).
+    """
+    rms_base = rms(front.heldout_residual(att.baseline))
+    base_gap = _gap(front, att.baseline, sigma, rms_base)
+    flags = [f for c in att.accepted for f in implausible(c, att.evaluations[c]["params"])]
+    for c in att.accepted:
+        att.evaluations[c]["plausible"] = not any(f["effect"] == c for f in flags)
+    findings = tuple(c for c in att.accepted if att.evaluations[c]["plausible"])
+    final = _gap(front, att.final, sigma, rms_base)
+    if findings == att.accepted:
+        kept_fit, kept = att.final, final
+    elif findings:
+        kept_fit = front.fit(att.modelled + findings, att.baseline)
+        kept = _gap(front, kept_fit, sigma, rms_base)
+    else:
+        kept_fit, kept = att.baseline, base_gap
+    if findings:
+        status = "explained" if _within(kept) else "partly_explained"
+    else:
+        status = "nothing_missing" if _within(base_gap) else "unexplained"
+    ms_left = kept["rms_gap"] ** 2 - sigma**2
+    ms_base = rms_base**2 - sigma**2
+    unexplained = {"effects_kept": list(findings), "rms_gap": kept["rms_gap"], "gap_to_noise": kept["gap_to_noise"],
+                   "share_left": round(kept["rms_gap"] / rms_base, 4) if rms_base > 0 else 0.0,
+                   "excess_share_left": round(max(ms_left, 0.0) / ms_base, 4) if ms_base > 0 else 0.0,
+                   "where": front.localise(kept_fit)}
+    if flags:
+        final["findings_only"] = {"effects": list(findings), "rms_gap": kept["rms_gap"],
+                                  "gap_to_noise": kept["gap_to_noise"]}
+    return {"status": status, "verdict": list(att.accepted), "findings": list(findings), "implausible": flags,
+            "baseline_gap": base_gap, "final": final, "unexplained": unexplained}
+
+
+def _fmt(p: dict) -> str:
+    return ", ".join(f"{k}={v:.3g}" for k, v in p.items() if isinstance(v, (int, float)) and not isinstance(v, bool))
+
+
+def effect_lines(effects: list[dict]) -> list[str]:
+    """One summary line per evaluated candidate."""
+    lines = []
+    for e in effects:
+        notes = "".join(f"  [{label} {', '.join(e[key])}]" for key, label in
+                        (("ambiguous_with", "as good:"), ("indistinguishable_from", "indistinguishable from"))
+                        if key in e)
+        if e.get("plausible") is False:
+            notes += "  [IMPLAUSIBLE value]"
+        lines.append(f"  {e['name']:<15} shrink {e['heldout_shrink']:+.1%}  ΔBIC {e['test']['delta_bic']:+.1f}  "
+                     f"{'SIGNIFICANT' if e['significant'] else 'not significant'}  {_fmt(e['params'])}{notes}")
+    return lines
+
+
+def ratio_text(x) -> str:
+    """``gap_to_noise`` as text (“3.2×”)."""
+    return "n/a (no noise floor)" if x is None else f"{x:.1f}×"
+
+
+def verdict_text(rep: dict, where_text) -> str:
+    """The verdict lines for a report carrying :func:`conclude`'s entries; ``where_text(where)``
+    is the front's one-line description of a localisation."""
+    status, base, un = rep["status"], rep["baseline"], rep["unexplained"]
+    lines = []
+    for f in rep["implausible"]:
+        lo, hi = f["plausible"]
+        lines.append(f"Implausible: {f['effect']} fitted with {f['parameter']} = {f['value']:.3g} {f['unit']}, outside "
+                     f"{lo:.3g}…{hi:.3g} ({f['source']}): the term absorbs another mismatch; not a finding.")
+    found = ", then ".join(rep["findings"])
+    left = (f"held-out gap {un['rms_gap'] * 1e9:.3g} nm = {ratio_text(un['gap_to_noise'])} the noise floor, "
+            f"{un['share_left']:.0%} of the baseline's gap (above noise: {un['excess_share_left']:.0%}) left")
+    if status == "nothing_missing":
+        lines.append(f"Verdict [nothing_missing]: nothing significant is missing (baseline's held-out gap "
+                     f"{ratio_text(base['gap_to_noise'])} the noise floor).")
+    elif status == "explained":
+        lines.append(f"Verdict [explained]: the model is missing {found}; with them the {left}.")
+    elif status == "partly_explained":
+        lines.append(f"Verdict [partly_explained]: the model is missing {found}, but more is missing: {left}. "
+                     f"Unexplained part — {where_text(un['where'])}")
+    else:
+        why = "no candidate with a plausible value" if rep["implausible"] else "no candidate"
+        lines.append(f"Verdict [unexplained]: {why} explains the gap: {left}. "
+                     f"Where — {where_text(un['where'])}")
+    return "\n".join(lines)
