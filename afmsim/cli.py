@@ -359,6 +359,67 @@ def sweep_command(
     typer.echo(f"wrote {out} ({len(table)} runs)")
 
 
+@app.command("calibrate")
+def calibrate_command(
+    measured: Path = typer.Option(..., "--measured", help="A real AFM file with forward/backward scans (.nid, .gwy, "
+                                  ".ibw, .spm, .npz, …) or a loop record CSV (t_s,v_V,x_m[,y_m])."),
+    out: Path = typer.Option(..., "--out", help="Folder to create: instrument.yaml, calibration.json, calibration.png."),
+    pitch_um: Optional[float] = typer.Option(None, "--pitch-um", help="Known lateral period of the sample, µm."),
+    scenario: Optional[Path] = typer.Option(None, "--scenario", help="Scenario whose sample (grating/lenses) gives the period."),
+    channel: Optional[str] = typer.Option(None, help="Height channel name (default: the topography/Z channel)."),
+    line_time_s: Optional[float] = typer.Option(None, "--line-time-s", help="Time of one scan direction, s (if the file lacks it)."),
+):
+    """Fit a virtual twin of a real AFM from its own trace/retrace images or loop record (issue 12).
+
+    Python: afmsim.twin.calibrate(measured, out, pitch_m=..., scenario=...).
+    """
+    from afmsim.twin import calibrate
+
+    try:
+        report = calibrate(measured, out, pitch_m=None if pitch_um is None else pitch_um * 1e-6, scenario=scenario,
+                           channel=channel, line_time_s=line_time_s)
+    except (ValueError, FileExistsError) as error:
+        _fail(str(error))
+    held = report["held_out"]
+    if "rms_error_m" in held:
+        typer.echo(f"held-out lines: shift-profile RMS error {held['rms_error_m'] * 1e6:.3f} µm "
+                   f"(measured profile RMS {held['measured_rms_m'] * 1e6:.3f} µm)")
+    else:
+        typer.echo(f"held-out samples: twin RMS {held['twin_rms_m'] * 1e6:.3f} µm, "
+                   f"default stage {held['default_stage_rms_m'] * 1e6:.3f} µm")
+    typer.echo(f"wrote {out}/instrument.yaml")
+
+
+@app.command("predict")
+def predict_command(
+    instrument: Path = typer.Option(..., "--instrument", help="instrument.yaml written by afmsim calibrate."),
+    measured: Path = typer.Option(..., "--measured", help="Another file from the same instrument (image pair or loop CSV)."),
+    out: Path = typer.Option(..., "--out", help="Folder to create: prediction.json, prediction.png."),
+    channel: Optional[str] = typer.Option(None, help="Height channel name (default: the topography/Z channel)."),
+    line_time_s: Optional[float] = typer.Option(None, "--line-time-s", help="Time of one scan direction, s (if the file lacks it)."),
+    seed: int = typer.Option(0, min=0, help="Seed of the Z-loop noise."),
+):
+    """Predict another measurement of the instrument on its twin and on afmsim's default stage (issue 12).
+
+    Python: afmsim.twin.predict(instrument, measured, out).
+    """
+    from afmsim.twin import predict
+
+    try:
+        result = predict(instrument, measured, out, channel=channel, line_time_s=line_time_s, seed=seed)
+    except (ValueError, FileExistsError) as error:
+        _fail(str(error))
+    if "rms_error_m" in result:
+        typer.echo(f"shift profile: measured RMS {result['measured_rms_m'] * 1e6:.3f} µm; twin error "
+                   f"{result['rms_error_m'] * 1e6:.3f} µm, default stage {result['default_stage']['rms_error_m'] * 1e6:.3f} µm")
+        typer.echo(f"NSL2: measured {result['nsl2']['measured']:.0f}, twin {result['nsl2']['predicted']:.0f}, "
+                   f"default stage {result['default_stage']['nsl2']['predicted']:.0f}")
+    else:
+        typer.echo(f"held-out RMS: twin {result['twin']['held_out_rms_m'] * 1e6:.3f} µm, "
+                   f"default stage {result['default_stage']['held_out_rms_m'] * 1e6:.3f} µm")
+    typer.echo(f"wrote {out}/prediction.json")
+
+
 def main() -> None:  # pragma: no cover - console entry point
     app(prog_name="afmsim")
 

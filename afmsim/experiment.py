@@ -36,11 +36,15 @@ UM, NM = 1e-6, 1e-9
 
 
 def build_stage(scenario: Scenario) -> XYStage:
-    """The XY plant with the scenario's physics switches."""
+    """The XY plant with the scenario's physics switches; a calibrated twin's stage when ``instrument:`` is set."""
     s = scenario.stage
-    stage = default_stage(s.hysteresis).with_effects(
-        saturation=s.saturation, amplifier=s.amplifier, creep=s.creep, drift=s.drift,
-        resonance=s.dynamics, noise=s.sensor_noise, coupling=s.cross_coupling > 0)
+    switches = dict(saturation=s.saturation, amplifier=s.amplifier, creep=s.creep, drift=s.drift,
+                    resonance=s.dynamics, noise=s.sensor_noise, coupling=s.cross_coupling > 0)
+    if scenario.instrument is not None:
+        from afmsim.twin import build_twin_stage, load_instrument
+
+        return build_twin_stage(load_instrument(scenario.instrument)).with_effects(**switches)
+    stage = default_stage(s.hysteresis).with_effects(**switches)
     return replace(stage, coupling_x_to_y=s.cross_coupling, coupling_y_to_x=s.cross_coupling)
 
 

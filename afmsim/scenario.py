@@ -257,6 +257,7 @@ class Scenario(_Block):
     controllers: list[Literal[CONTROLLER_NAMES]] = Field(default_factory=lambda: ["none", "spi", "diapi", "vendor", "ideal"],
                                                          min_length=1)
     numerics: NumericsSpec = NumericsSpec()
+    instrument: Union[Path, None] = None  # a twin's instrument.yaml (afmsim calibrate), relative to the scenario file
 
     @field_validator("name")
     @classmethod
@@ -402,8 +403,22 @@ def read_yaml(path):
 
 
 def load_scenario(path) -> Scenario:
-    """Read and validate a scenario YAML file; raises :class:`ScenarioError` (one line)."""
-    return parse_scenario(read_yaml(path))
+    """Read and validate a scenario YAML file; raises :class:`ScenarioError` (one line).
+
+    A relative ``instrument:`` path is taken relative to the scenario file, and the instrument file is
+    validated too (:func:`afmsim.twin.load_instrument`).
+    """
+    scenario = parse_scenario(read_yaml(path))
+    if scenario.instrument is not None:
+        from afmsim.twin.instrument import load_instrument
+
+        instrument_path = Path(path).parent / scenario.instrument
+        try:
+            load_instrument(instrument_path)
+        except ScenarioError as error:
+            raise ScenarioError(f"instrument: {error}") from None
+        scenario = scenario.model_copy(update={"instrument": instrument_path})
+    return scenario
 
 
 def check_sample_files(scenario: Scenario) -> None:

@@ -1,0 +1,175 @@
+"""The virtual twin (issue 12): shift profile, instrument file, calibration, prediction, CLI."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from afmsim.cli import app
+from afmsim.stage import AsymmetricPreisach
+from afmsim.twin import Instrument, InstrumentError, build_twin_stage, load_instrument
+from afmsim.twin.calibrate_images import calibrate_images
+from afmsim.twin.calibrate_loops import calibrate_loop
+from afmsim.twin.instrument import AxisSpec, ScanHabitSpec, dump_instrument, twin_z_feedback
+from afmsim.twin.measured import load_measured_pair, overscan_from_metadata
+from afmsim.twin.predict_images import predict_images
+from afmsim.twin.raster import RealScan
+from afmsim.twin.shift_profile import shift_profile
+from afmsim.twin.simulate import fast_pair, simulate_scan
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+REAL_AFM = SHARED / "real-data" / "afm"
+REAL_LOOP = SHARED / "real-data" / "piezo-sine-150V-1Hz.csv"
+needs_real_afm = pytest.mark.skipif(not (REAL_AFM / "circles.nid").is_file(), reason="../shared real AFM files absent")
+needs_real_loop = pytest.mark.skipif(not REAL_LOOP.is_file(), reason="../shared loop record absent")
+
+
+def _blobs(lines=32, pixels=96, seed=1):
+    """A random field of round bumps (m), rows = lines: something with edges at random places."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:lines, 0:pixels]
+    z = np.zeros((lines, pixels))
+    for cx, cy in zip(rng.uniform(0, pixels, 40), rng.uniform(0, lines, 40)):
+        z += 200e-9 * (np.hypot(x - cx, (y - cy) * 2) < 4)
+    return z
+
+
+def test_shift_profile_sign_and_size():
+    """A retrace that shows every feature 3 px to the left gives −3 px in every window."""
+    trace = _blobs()
+    retrace = np.roll(trace, -3, axis=1)
+    profile = shift_profile(trace, retrace, 0.1e-6, n_windows=4)
+    inner = profile.shift_m[1:-1]
+    assert np.allclose(inner, -0.3e-6, atol=0.02e-6)
+    assert np.all(profile.lines_used[1:-1] >= 5)
+
+
+def test_shift_profile_does_not_alias_a_periodic_sample():
+    """Lines along y with a 20 px period, retrace 7 px left: the estimate is −7 px, not +13 px."""
+    x = np.arange(160)
+    trace = np.tile((np.sin(2 * np.pi * x / 20) > 0).astype(float), (24, 1)) * 100e-9
+    profile = shift_profile(trace, np.roll(trace, -7, axis=1), 1e-7, n_windows=4)
+    assert np.allclose(profile.shift_m[1:-1], -7e-7, atol=0.5e-7)
+
+
+def test_instrument_round_trip_and_preisach_plant(tmp_path):
+    instrument = Instrument(fast_axis=AxisSpec(hysteretic_fraction=0.1, travel_um=70), provenance={"fast_axis.skew": "fitted"})
+    dump_instrument(instrument, tmp_path / "instrument.yaml")
+    loaded = load_instrument(tmp_path / "instrument.yaml")
+    assert loaded == instrument
+    stage = build_twin_stage(loaded)
+    # the twin's plant is afmsim's Preisach family, never a PI model (no inverse crime)
+    assert isinstance(stage.x.params.hysteresis, AsymmetricPreisach)
+    assert stage.x.params.hysteresis.hysteretic_fraction == 0.1
+    assert stage.x.params.sensitivity_m_per_V * 9.1 == pytest.approx(70e-6)
+
+
+@pytest.mark.parametrize("edit, field", [
+    ({"fast_axis": {"hysteretic_fraction": 1.5}}, "fast_axis.hysteretic_fraction"),
+    ({"fast_axis": {"travel_um": "50 um"}}, "fast_axis.travel_um"),
+    ({"z_loop": {"lag": 1.0}}, "z_loop.lag"),
+    ({"provenance": {"fast_axis.nonsense": "fitted"}}, "provenance"),
+    ({"loop_drive": {"v_min_V": 5.0, "v_max_V": 1.0}}, "loop_drive.v_max_V"),
+])
+def test_bad_instrument_is_one_line_naming_the_field(tmp_path, edit, field):
+    path = tmp_path / "instrument.yaml"
+    path.write_text(yaml.safe_dump({**Instrument().model_dump(mode="json"), **edit}))
+    with pytest.raises(InstrumentError) as error:
+        load_instrument(path)
+    message = str(error.value)
+    assert "\n" not in message and field in message
+
+
+def test_fast_model_agrees_with_the_full_scan():
+    """The calibration's inner model and the full scan (scan_frame, Z loop, creep) give the same profile."""
+    trace = _blobs(lines=24, pixels=96)
+    scan = RealScan((20e-6, 5e-6), 96, 24, 0.5)
+    instrument = Instrument(fast_axis=AxisSpec(hysteretic_fraction=0.15))
+    stage = build_twin_stage(instrument)
+    fast = shift_profile(*fast_pair(stage.x, trace, scan, travel_m=100e-6, overscan_fraction=0.0, centre_fraction=0.5,
+                                    lag_s=0.0), 20e-6 / 96, 4)
+    full = shift_profile(*simulate_scan(stage, twin_z_feedback(instrument), trace, scan,
+                                        travel_m=100e-6, overscan_fraction=0.0, centre_fraction=0.5,
+                                        samples_per_pixel=4, rng=np.random.default_rng(0)), 20e-6 / 96, 4)
+    assert np.nanmax(np.abs(fast.shift_m)) > 2 * 20e-6 / 96  # a real shift, not zero
+    assert np.allclose(fast.shift_m, full.shift_m, atol=0.6 * 20e-6 / 96, equal_nan=True)
+
+
+def test_calibration_recovers_a_known_twin():
+    """A pair simulated by the full scan of a known instrument is fitted back (other seed, other code path)."""
+    truth = Instrument(fast_axis=AxisSpec(hysteretic_fraction=0.12, width_decay=0.2, skew=0.3),
+                       scan=ScanHabitSpec(overscan_fraction=0.05))
+    sample = _blobs(lines=32, pixels=96, seed=7)
+    scan = RealScan((30e-6, 10e-6), 96, 32, 0.5)
+    trace, retrace = simulate_scan(build_twin_stage(truth), twin_z_feedback(truth),
+                                   sample, scan, travel_m=100e-6, overscan_fraction=0.05, centre_fraction=0.5,
+                                   samples_per_pixel=4, rng=np.random.default_rng(11))
+    start = Instrument(scan=ScanHabitSpec(overscan_fraction=0.05))
+    cal = calibrate_images(trace, retrace, scan, start=start, max_nfev=25)
+    measured = shift_profile(trace, retrace, 30e-6 / 96, 8)
+    prediction, _ = predict_images(cal.instrument, trace, retrace, scan, seed=3)
+    assert prediction["rms_error_m"] < 0.2 * prediction["measured_rms_m"]
+    assert prediction["rms_error_m"] < prediction["default_stage"]["rms_error_m"] / 3
+    assert np.nanmean(measured.shift_m) < 0
+
+
+def test_overscan_from_header():
+    assert overscan_from_metadata({"Overscan": "5 %"}) == pytest.approx(0.05)
+    assert overscan_from_metadata({"Scan": "x"}) is None
+
+
+def test_cli_bad_input_exit_2_nothing_written(tmp_path):
+    runner = CliRunner()
+    out = tmp_path / "twin"
+    result = runner.invoke(app, ["calibrate", "--measured", str(tmp_path / "missing.nid"), "--out", str(out)])
+    assert result.exit_code == 2 and "missing.nid" in result.output and not out.exists()
+    bad = tmp_path / "instrument.yaml"
+    bad.write_text("fast_axis: {skew: 3}\n")
+    result = runner.invoke(app, ["predict", "--instrument", str(bad), "--measured", str(tmp_path / "x.nid"),
+                                 "--out", str(out)])
+    assert result.exit_code == 2 and "fast_axis.skew" in result.output and not out.exists()
+    result = runner.invoke(app, ["calibrate", "--measured", str(tmp_path / "x.nid"), "--pitch-um", "5",
+                                 "--scenario", str(bad), "--out", str(out)])
+    assert result.exit_code == 2 and not out.exists()
+
+
+def test_scenario_runs_on_the_twin(tmp_path):
+    from afmsim.experiment import build_stage
+    from afmsim.scenario import ScenarioError, load_scenario
+
+    (tmp_path / "twin").mkdir()
+    dump_instrument(Instrument(fast_axis=AxisSpec(hysteretic_fraction=0.07)), tmp_path / "twin" / "instrument.yaml")
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text("sample: {kind: grating}\ninstrument: twin/instrument.yaml\n")
+    stage = build_stage(load_scenario(scenario))
+    assert stage.x.params.hysteresis.hysteretic_fraction == 0.07
+    scenario.write_text("sample: {kind: grating}\ninstrument: twin/none.yaml\n")
+    with pytest.raises(ScenarioError, match="^instrument: "):
+        load_scenario(scenario)
+
+
+@needs_real_afm
+def test_real_circles_predict_squares_holes():
+    """Issue 12's evidence on fewer lines (64 of 256) to stay fast; the README gives the full figures."""
+    circles = load_measured_pair(REAL_AFM / "circles.nid")
+    squares = load_measured_pair(REAL_AFM / "squares_holes.nid")
+    lines = slice(0, 64)
+
+    def part(pair):
+        return RealScan((pair.scan.size_m[0], pair.scan.size_m[1] / 4), pair.scan.pixels, 64, pair.scan.line_time_s)
+
+    start = Instrument(scan=ScanHabitSpec(overscan_fraction=circles.overscan_fraction))
+    cal = calibrate_images(circles.trace[lines], circles.retrace[lines], part(circles), start=start, max_nfev=25)
+    prediction, _ = predict_images(cal.instrument, squares.trace[lines], squares.retrace[lines], part(squares))
+    assert prediction["rms_error_m"] <= 0.2 * prediction["measured_rms_m"]
+    assert prediction["rms_error_m"] <= prediction["default_stage"]["rms_error_m"] / 3
+    assert abs(prediction["nsl2_relative_error"]) <= 0.3
+
+
+@needs_real_loop
+def test_real_loop_record_held_out_beats_default():
+    cal = calibrate_loop(REAL_LOOP, max_nfev=12)
+    held = cal.report["held_out"]
+    assert held["twin_rms_m"] < held["default_stage_rms_m"]
