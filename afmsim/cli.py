@@ -99,13 +99,18 @@ def run(
     out: Optional[Path] = typer.Option(None, help="Run folder to create (default: outputs/run-<name>-<time>)."),
     experiments: Optional[int] = typer.Option(None, min=1, max=1000, help="Override the scenario's experiment count."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    renders: str = typer.Option("key", help="3D renders: none, key (the sample, the uncompensated and the best "
+                                "controller) or all (trace and retrace of every controller)."),
+    workers: Optional[int] = typer.Option(None, min=1, max=256, help="Worker processes for scans and figures "
+                                          "(default: every core; results are the same bits for any count)."),
 ):
     """Run a scenario: scans per controller, images, metrics (paper Tables 3–4).
 
-    Python: afmsim.resources.preflight(scenario), afmsim.experiment.run_scenario(scenario) and
-    afmsim.report.write_run(...).
+    Python: afmsim.resources.preflight(scenario), afmsim.experiment.run_scenario(scenario, workers=N) and
+    afmsim.report.write_run(result, folder, renders="key").
     """
     import sys
+    import time
 
     from afmsim.experiment import run_scenario
     from afmsim.report.run_output import write_run
@@ -113,6 +118,13 @@ def run(
     from afmsim.runio import default_run_dir, run_folder
     from afmsim.scenario import ScenarioError, parse_scenario
 
+    started = time.perf_counter()
+    from afmsim.report.run_output import RENDER_CHOICES
+    from afmsim.workers import available_cores
+
+    if renders not in RENDER_CHOICES:
+        _fail(f"--renders must be one of {', '.join(RENDER_CHOICES)}, got {renders!r}")
+    workers = workers or available_cores()
     loaded = _load(scenario)
     if experiments is not None:
         try:
@@ -126,9 +138,14 @@ def run(
     show = not quiet and sys.stderr.isatty()
     with _progress(show) as progress:
         try:
-            with run_folder(out, config=loaded.model_dump(mode="json"), seed=loaded.seed, command="run") as folder:
-                result = run_scenario(loaded, progress=progress)
-                write_run(result, folder)
+            extra = {}
+            with run_folder(out, config=loaded.model_dump(mode="json"), seed=loaded.seed, command="run",
+                            extra=extra) as folder:
+                result = run_scenario(loaded, progress=progress, workers=workers)
+                simulated = time.perf_counter()
+                write_run(result, folder, renders=renders, progress=progress, workers=workers)
+                extra["timings"] = {**result.timings, "report_s": time.perf_counter() - simulated,
+                                    "total_s": time.perf_counter() - started}
         except ValueError as error:
             _fail(str(error).splitlines()[0])
         except OSError as error:
@@ -169,7 +186,8 @@ def render(
 
 
 def _progress(show: bool):
-    """A context manager yielding ``progress(step, total, label)``: a rich bar on a terminal, else silent."""
+    """A context manager yielding ``progress(stage, done, total)``: a rich bar per stage (identify,
+    scan, metrics, figures, renders, report) on a terminal, else silent."""
     from contextlib import contextmanager, nullcontext
 
     if not show:
@@ -177,12 +195,17 @@ def _progress(show: bool):
 
     @contextmanager
     def bar():
-        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-        with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                      TimeElapsedColumn(), transient=True) as prog:
-            task = prog.add_task("scanning", total=None)
-            yield lambda step, total, label: prog.update(task, completed=step, total=total, description=label)
+        with Progress(TextColumn("{task.description:>8}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      transient=True) as prog:
+            tasks = {}
+
+            def update(stage, done, total):
+                if stage not in tasks:
+                    tasks[stage] = prog.add_task(stage, total=total)
+                prog.update(tasks[stage], completed=done, total=total)
+            yield update
     return bar()
 
 

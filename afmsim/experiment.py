@@ -16,12 +16,13 @@ than the image pixels.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from afmsim.compensation import build_controller
-from afmsim.metrics import image_shift, lens_centres, left_right_pitch, nsl2_binarized, summarize
+from afmsim.metrics import image_shift, lens_centres, left_right_pitch, nsl2_binarized, scale_x, summarize
 from afmsim.metrics.nsl2 import e_D
 from afmsim.reproducible import single_blas_thread
 from afmsim.samples import HeightMap, MicroLensArray, grating_heightmap, load_heightmap, mesh_file_to_heightmap
@@ -29,6 +30,7 @@ from afmsim.scan import RasterGeometry, ScanImages, ZFeedback, ZStage, raster_tr
 from afmsim.scenario import Scenario
 from afmsim.stage import XYStage, default_stage, triangle_wave
 from afmsim.tip import dilate, mlct_tip
+from afmsim.workers import ordered_map, shared, worker_pool
 
 __all__ = ["ScenarioResult", "run_scenario", "build_stage", "build_sample", "scan_geometry", "identify_axes", "ideal_twin"]
 
@@ -132,8 +134,10 @@ class ScenarioResult:
     dilated: HeightMap
     mesh: object
     images: dict = field(default_factory=dict)      # controller -> ScanImages (experiment 1)
+    frames: list = field(default_factory=list)      # per experiment: controller -> (trace, retrace) HeightMaps
     scores: dict = field(default_factory=dict)      # controller -> metric -> list over experiments
     notes: list = field(default_factory=list)       # scores that could not be measured, and why
+    timings: dict = field(default_factory=dict)     # wall times (s) of the stages, and the worker count
 
     def metrics(self) -> dict:
         """The ``metrics.json`` content: mean/std/per-experiment of every score, and e_D."""
@@ -156,6 +160,7 @@ def _score(images: ScanImages, kind: str) -> tuple[dict, list[str]]:
     notes = []
     shift_x, shift_y = image_shift(trace.z, retrace.z, trace.pixel_size)
     scores = {"nsl2": nsl2_binarized(trace.z, retrace.z), "shift_x_m": shift_x, "shift_y_m": shift_y}
+    scores["scale_x"] = scale_x(trace.x, images.actual_x_trace, images.actual_x_retrace)
     if kind == "microlens":
         centre_shift = _central_lens_shift(trace, retrace)
         if centre_shift is not None:
@@ -184,16 +189,45 @@ def _central_lens_shift(trace: HeightMap, retrace: HeightMap):
     return float(found[1][0] - found[0][0])
 
 
+def _scan_one(name: str, records: dict, rng: np.random.Generator) -> ScanImages:
+    """One controller's scan of one experiment: fit the controller to the experiment's identification
+    ``records``, then scan (the shared inputs come from :func:`afmsim.workers.shared`)."""
+    scenario, stage = shared("scenario"), shared("stage")
+    controllers = [build_controller(name, *records[axis], n_operators=scenario.identification.n_operators,
+                                    nominal_sensitivity_m_per_V=getattr(stage, axis).params.sensitivity_m_per_V)
+                   for axis in ("x", "y")]
+    plant = ideal_twin(stage) if name == "ideal" else stage
+    images = scan_frame(shared("dilated"), shared("trajectory"), plant, *controllers, shared("z_stage"),
+                        shared("z_feedback"), rng)
+    # Own, C-contiguous arrays: the scores of a strided view and of its (pickled) copy differ in
+    # the last bits (numpy sums them in another order), so serial and parallel runs score copies.
+    return replace(images, trace=replace(images.trace, z=np.ascontiguousarray(images.trace.z)),
+                   retrace=replace(images.retrace, z=np.ascontiguousarray(images.retrace.z)),
+                   actual_x_trace=np.ascontiguousarray(images.actual_x_trace),
+                   actual_x_retrace=np.ascontiguousarray(images.actual_x_retrace))
+
+
+def _score_one(images: ScanImages, kind: str) -> tuple[dict, list[str]]:
+    return _score(images, kind)
+
+
 @single_blas_thread
-def run_scenario(scenario: Scenario, progress=None) -> ScenarioResult:
-    """Run every experiment of a scenario; ``progress(step, total, label)`` is called if given."""
+def run_scenario(scenario: Scenario, progress=None, *, workers: int = 1) -> ScenarioResult:
+    """Run every experiment of a scenario.
+
+    ``progress(stage, done, total)`` is called if given, ``stage`` one of "identify", "scan",
+    "metrics". The scans (experiments × controllers) and their scores run on ``workers`` forked
+    processes (:mod:`afmsim.workers`); the result is bit-identical for any ``workers``. The
+    identification of each experiment is run once and shared by its controllers. The wall times
+    of the stages are in ``result.timings`` (s).
+    """
+    started = time.perf_counter()
     geometry = scan_geometry(scenario)
     trajectory = raster_trajectory(geometry)
     truth, mesh = build_sample(scenario, geometry)
     tip = mlct_tip(scenario.tip.shape, scenario.tip.apex_radius_nm * NM, scenario.tip.half_angle_deg)
     dilated = dilate(truth, tip)
     stage = build_stage(scenario)
-    ideal_stage = ideal_twin(stage)
     z_stage = ZStage(sensitivity_m_per_V=scenario.z_stage.sensitivity_um_per_V * UM,
                      max_voltage_V=scenario.z_stage.travel_um / scenario.z_stage.sensitivity_um_per_V,
                      hysteresis=scenario.z_stage.hysteresis)
@@ -202,23 +236,30 @@ def run_scenario(scenario: Scenario, progress=None) -> ScenarioResult:
                            deflection_noise_m=zf.deflection_noise_nm * NM, loop_rate_hz=scenario.numerics.z_loop_rate_hz)
     result = ScenarioResult(scenario, truth, dilated, mesh)
     names = list(dict.fromkeys(scenario.controllers))
-    total, step = scenario.experiments * len(names), 0
+    report = (lambda stage_name: (lambda _, done, total: progress(stage_name, done, total))) if progress else \
+        (lambda stage_name: None)
+    tasks = []
     for k, rng in enumerate(np.random.default_rng(scenario.seed).spawn(scenario.experiments)):
         ident_rng, *scan_rngs = rng.spawn(1 + len(names))
         records = identify_axes(stage, scenario, geometry, ident_rng)
-        for name, scan_rng in zip(names, scan_rngs):
-            controllers = [build_controller(name, *records[axis], n_operators=scenario.identification.n_operators,
-                                            nominal_sensitivity_m_per_V=getattr(stage, axis).params.sensitivity_m_per_V)
-                           for axis in ("x", "y")]
-            plant = ideal_stage if name == "ideal" else stage
-            images = scan_frame(dilated, trajectory, plant, *controllers, z_stage, z_feedback, scan_rng)
-            if k == 0:
-                result.images[name] = images
-            scores, notes = _score(images, scenario.sample.kind)
-            for metric, value in scores.items():
-                result.scores.setdefault(name, {}).setdefault(metric, []).append(float(value))
-            result.notes.extend(note for note in notes if note not in result.notes)
-            step += 1
-            if progress is not None:
-                progress(step, total, f"experiment {k + 1}/{scenario.experiments}: {name}")
+        tasks += [(k, name, records, scan_rng) for name, scan_rng in zip(names, scan_rngs)]
+        if progress is not None:
+            progress("identify", k + 1, scenario.experiments)
+    workers = max(1, min(int(workers), len(tasks)))
+    with worker_pool(workers, scenario=scenario, stage=stage, dilated=dilated, trajectory=trajectory,
+                     z_stage=z_stage, z_feedback=z_feedback) as executor:
+        scans = ordered_map(executor, _scan_one, [task[1:] for task in tasks], report("scan"))
+        scanned = time.perf_counter()
+        scored = ordered_map(executor, _score_one, [(images, scenario.sample.kind) for images in scans],
+                             report("metrics"))
+    for (k, name, *_), images, (scores, notes) in zip(tasks, scans, scored):
+        if k == 0:
+            result.images[name] = images
+        if k == len(result.frames):
+            result.frames.append({})
+        result.frames[k][name] = (images.trace, images.retrace)
+        for metric, value in scores.items():
+            result.scores.setdefault(name, {}).setdefault(metric, []).append(float(value))
+        result.notes.extend(note for note in notes if note not in result.notes)
+    result.timings = {"simulate_s": scanned - started, "metrics_s": time.perf_counter() - scanned, "workers": workers}
     return result

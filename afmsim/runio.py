@@ -142,14 +142,15 @@ def remove_stale_staging(parent) -> list[Path]:
 
 
 @contextmanager
-def run_folder(destination, *, config: dict, seed: int, command: str):
+def run_folder(destination, *, config: dict, seed: int, command: str, extra: dict | None = None):
     """Yield a hidden staging folder to write a run into; on success move it to ``destination``.
 
     ``destination`` must not exist yet. Stale staging folders of dead runs beside it are removed
     first (:func:`remove_stale_staging`). ``manifest.json`` (config, seed, versions, git revision,
     command, start and end times) is written last, then the folder is renamed into place. On any
     exception, ``KeyboardInterrupt`` included, the staging folder is removed and nothing appears
-    at ``destination``.
+    at ``destination``. ``extra`` (a dict the caller may fill while the run is written, e.g.
+    ``timings``) is added to the manifest as it stands when the block ends.
     """
     destination = Path(destination)
     if destination.exists():
@@ -166,7 +167,7 @@ def run_folder(destination, *, config: dict, seed: int, command: str):
             "command": command, "config": config, "seed": seed, "versions": versions(),
             "git": git_revision(), "platform": platform.platform(), "argv": sys.argv,
             "started_utc": started, "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            "units": "SI (m, V, s) unless a key names another unit",
+            "units": "SI (m, V, s) unless a key names another unit", **(extra or {}),
         })
         if lock is not None:
             (staging / _LOCK).unlink()  # still held through the descriptor until the rename is done

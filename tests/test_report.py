@@ -28,14 +28,14 @@ def run_dir(tmp_path_factory):
                                "experiments": 1, "controllers": CONTROLLERS})
     result = run_scenario(scenario)
     folder = tmp_path_factory.mktemp("run")
-    write_run(result, folder)
+    write_run(result, folder, renders="all")
     return folder
 
 
 def test_report_html_embeds_images(run_dir):
     page = (run_dir / "report.html").read_text(encoding="utf-8")
     uris = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page)
-    # 4 height images + 4 paper figures + binarized (+ 9 renders where rendering works)
+    # 4 height/difference images + 4 paper figures + binarized (+ 9 renders where rendering works)
     assert len(uris) >= 9
     assert all(u.startswith("iVBORw0KGgo") for u in uris)  # base64 of the PNG signature
     assert 'src="render_' not in page and 'src="image_' not in page  # nothing linked from outside
@@ -139,3 +139,81 @@ def test_identification_report(tmp_path):
     assert rows[-1][1:3] == ["0.08", "0.021"]
     assert "paper RMS" in (tmp_path / "table2.md").read_text()
     assert len(list(csv.reader((tmp_path / "table1.csv").open()))) == 1 + result.settings["n_operators"]
+
+
+def test_report_explains_itself_on_its_first_screen(run_dir):
+    page = (run_dir / "report.html").read_text(encoding="utf-8")
+    first = page[:page.index("<h2>Definitions</h2>")]          # what comes before any figure
+    assert "What was run." in first and "micro-lens array" in first and "32 × 32 px" in first
+    assert "Best compensation:" in first and "× ideal" in first and "paper NSL2" in first
+    assert "NSL2 grows with the pixel count" in first and "32 × 32 = 1,024 pixels" in first
+    assert "data:image/png" not in first and "kind: microlens" not in first
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    if metrics["e_D"] <= 0:
+        assert "DIAPI is worse than SPI here" in first and "minor loops" in first
+    definitions = page[page.index("<h2>Definitions</h2>"):page.index("<h2>Provenance</h2>")]
+    for term in ("NSL2</b> (paper eq. 8)", "e_D</b> (eq. 9)", "shift x</b>", "negative = the retrace", "scale x</b>"):
+        assert term in definitions, term
+    provenance = page[page.index("<h2>Provenance</h2>"):]
+    assert re.search(r"afmsim \S+, commit [0-9a-f]{12}|commit unknown", provenance) and "UTC" in provenance
+    assert re.search(r"<details><summary>Scenario \(YAML\)</summary>\s*<pre>", page)
+    assert "<details><summary>3D renders" in page or "3D renders skipped" in page
+    assert "<figcaption><b>figure_none.png</b> — Paper Fig. 10–13 analogue" in page
+
+
+def test_height_images_have_data_limits_and_out_of_range_markers():
+    import matplotlib.pyplot as plt
+
+    from afmsim.report.figures import run_colour_scales, show_height, substrate_level
+    from afmsim.samples.heightmap import HeightMap
+
+    rng = np.random.default_rng(0)
+    z = np.full((40, 40), 500e-9) + rng.normal(0, 1e-9, (40, 40))
+    z[10:20, 10:20] += 300e-9             # a feature
+    z[30:, :] -= 60e-9                     # a dip below the substrate: 25 % of the pixels
+    trace, retrace = HeightMap(z, (1e-7, 1e-7)), HeightMap(z + 2e-9, (1e-7, 1e-7))
+    assert substrate_level(z) == pytest.approx(500e-9, abs=2e-9)   # the median of the pixels below the mean
+    scale = run_colour_scales({"c": (trace, retrace)})
+    low, high = scale.height_nm
+    assert low < -55 and 295 < high < 305                         # from the data, not from a fixed 0
+    fig, ax = plt.subplots()
+    shown = show_height(ax, trace, scale.height_nm)
+    assert shown.get_clim() == (low, high)
+    assert tuple(shown.cmap.get_under()) != shown.cmap(0.0) and tuple(shown.cmap.get_over()) != shown.cmap(1.0)
+    plt.close(fig)
+
+
+def test_cli_run_records_timings_and_renders_none_writes_no_render(tmp_path):
+    from pathlib import Path
+
+    out = tmp_path / "run"
+    scenario = Path(__file__).resolve().parents[1] / "scenarios" / "quick.yaml"
+    outcome = CliRunner().invoke(app, ["run", str(scenario), "--out", str(out), "--experiments", "1",
+                                       "--renders", "none"])
+    assert outcome.exit_code == 0, outcome.output
+    assert not list(out.glob("render_*.png"))
+    assert (out / "figure_none.png").is_file() and (out / "image_none.png").is_file()
+    timings = json.loads((out / "manifest.json").read_text())["timings"]
+    assert {"simulate_s", "metrics_s", "report_s", "total_s"} <= set(timings)
+    assert 0 < timings["simulate_s"] < timings["total_s"] and timings["report_s"] < timings["total_s"]
+    bad = CliRunner().invoke(app, ["run", str(scenario), "--out", str(tmp_path / "bad"), "--renders", "some"])
+    assert bad.exit_code == 2 and "--renders must be one of none, key, all" in bad.output
+    assert not (tmp_path / "bad").exists()
+
+
+def test_gwy_holds_every_experiment_with_line_rate_and_scenario(tmp_path):
+    from gwyfile.objects import GwyObject
+
+    scenario = parse_scenario({"name": "two", "sample": {"kind": "grating", "period_um": 5},
+                               "scan": {"size_um": [15, 15], "offset_um": [2, 2], "pixels": 32, "lines": 32,
+                                        "line_rate_hz": 2.0},
+                               "experiments": 2, "controllers": ["none", "spi"]})
+    write_run(run_scenario(scenario), tmp_path, renders="none")
+    channels = read_gwy(tmp_path / "images.gwy")
+    assert list(channels) == ["trace none", "retrace none", "trace spi", "retrace spi",
+                              "trace none (experiment 2)", "retrace none (experiment 2)",
+                              "trace spi (experiment 2)", "retrace spi (experiment 2)", "topography"]
+    assert not np.array_equal(channels["trace spi"].z, channels["trace spi (experiment 2)"].z)  # fresh noise
+    meta = GwyObject.fromfile(str(tmp_path / "images.gwy"))["/4/meta"]
+    assert float(meta["line rate (Hz)"]) == 2.0 and meta["scenario"] == "two"
+    assert "period_um: 5.0" in meta["scenario (YAML)"]

@@ -4,6 +4,7 @@
 * :mod:`.registration` — sub-pixel trace/retrace shift.
 * :mod:`.lenses` — micro-lens centres and trace/retrace pairing.
 * :mod:`.grating` — grating edges, line widths, periods, left vs right of the field.
+* :mod:`.scale` — magnification of the image along the fast axis.
 * :mod:`.summary` — mean / sample σ over repeated experiments.
 
 Images are 2-D arrays, rows = scan lines (y), columns = pixels left → right (x), heights in
@@ -14,6 +15,7 @@ from .grating import GratingLines, grating_profile, left_right_pitch, line_pitch
 from .lenses import lens_centres, match_centres
 from .nsl2 import binarize, e_D, nsl2, nsl2_binarized
 from .registration import image_shift, image_shift_px
+from .scale import scale_x
 from .summary import summarize
 
 __all__ = [
@@ -21,5 +23,5 @@ __all__ = [
     "image_shift", "image_shift_px",
     "lens_centres", "match_centres",
     "GratingLines", "grating_profile", "line_pitches", "left_right_pitch",
-    "summarize",
+    "scale_x", "summarize",
 ]

@@ -6,7 +6,8 @@ Display conventions (the same for every view, so images of different runs compar
 * Heights are coloured with a fixed colour map (``viridis``) over ``z_range_m`` with a colour
   bar labelled "height (nm)" (the z scale of the view; the grid's z range is also set in nm),
   while the drawn z is exaggerated by a factor written in the view ("vertical exaggeration
-  ×E", bottom line, with pixel count, scan size in µm and z range in nm). E is a
+  ×E", the line under the title, with pixel count, scan size in µm and z range in nm); colour-bar
+  labels are whole nanometres on ranges of 20 nm or more. E is a
   1-2-5 number chosen from the lateral size and ``z_range_m`` (see
   :func:`z_exaggeration_for`), so runs rendered with the same ``z_range_m`` on the same scan
   size get the same E and the same camera.
@@ -59,6 +60,12 @@ def z_exaggeration_for(lateral_extent_m: float, z_span_m: float,
         if m * decade <= raw * (1 + 1e-12):
             return m * decade
     return decade  # pragma: no cover
+
+
+def _nm(z_m: float) -> str:
+    """A height (m) as nm text: whole nanometres from 20 nm up, never in e-notation."""
+    v = z_m * _NANO
+    return f"{v:.0f}" if abs(v) >= 20 else f"{v:.2g}"
 
 
 def _z_limits(z_m: np.ndarray, z_range_m) -> tuple[float, float]:
@@ -136,7 +143,9 @@ def _finish(p: pv.Plotter, mesh: pv.DataSet, *, path, title, clim_nm, axes_um_nm
     p.set_background("white")
     p.add_mesh(mesh, scalars="height (nm)", cmap=cmap, clim=clim_nm, show_scalar_bar=False,
                ambient=0.3, diffuse=0.7, specular=0.1, smooth_shading=True)
-    p.add_scalar_bar(title="height (nm)", color="black", vertical=True, n_labels=5, fmt="%.3g",
+    span = clim_nm[1] - clim_nm[0]
+    p.add_scalar_bar(title="height (nm)", color="black", vertical=True, n_labels=5,
+                     fmt="%.0f" if span >= 20 else "%.1f" if span >= 2 else "%.3g",
                      position_x=0.88, position_y=0.2, width=0.07, height=0.6,
                      title_font_size=18, label_font_size=15)
     # Grid labels: x/y in µm (display units); the z range is given in nm (true heights). 2-D
@@ -145,7 +154,8 @@ def _finish(p: pv.Plotter, mesh: pv.DataSet, *, path, title, clim_nm, axes_um_nm
                 ztitle="z (nm)", color="black", font_size=11, n_xlabels=5, n_ylabels=5,
                 n_zlabels=3, fmt="%.3g", location="outer", use_2d=True)
     p.add_text(title, position="upper_edge", font_size=14, color="black")
-    p.add_text(f"vertical exaggeration ×{exaggeration:g}   ·   {info}", position="lower_left",
+    # Second line under the title (the lower edge belongs to the grid's labels).
+    p.add_text(f"vertical exaggeration ×{exaggeration:g}   ·   {info}", position=(12, p.window_size[1] - 58),
                font_size=9, color="black")
     _set_camera(p, camera, bounds)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -212,7 +222,7 @@ def render_height_map(hmap: HeightMap, path, *, title: str, z_range_m=None,
               lo * zs, hi * zs)
     axes = list(bounds[:4]) + [lo * _NANO, hi * _NANO]
     info = (f"{nx}×{ny} px, {nx * dx * _MICRO:.3g}×{ny * dy * _MICRO:.3g} µm, "
-            f"z {lo * _NANO:.3g}…{hi * _NANO:.3g} nm")
+            f"z {_nm(lo)}…{_nm(hi)} nm")
     p = _plotter(window_size, interactive)
     return _finish(p, surf, path=path, title=title, clim_nm=(lo * _NANO, hi * _NANO),
                    axes_um_nm=axes, bounds=bounds, exaggeration=e, info=info, camera=camera,
@@ -252,7 +262,7 @@ def render_mesh(mesh, path, *, title: str = "sample mesh", z_range_m=None,
     bounds = (xa * _MICRO, xb * _MICRO, ya * _MICRO, yb * _MICRO, lo * zs, hi * zs)
     axes = list(bounds[:4]) + [lo * _NANO, hi * _NANO]
     info = (f"{len(verts)} vertices, {(xb - xa) * _MICRO:.3g}×{(yb - ya) * _MICRO:.3g} µm, "
-            f"z {lo * _NANO:.3g}…{hi * _NANO:.3g} nm")
+            f"z {_nm(lo)}…{_nm(hi)} nm")
     p = _plotter(window_size, interactive)
     return _finish(p, poly, path=path, title=title, clim_nm=(lo * _NANO, hi * _NANO),
                    axes_um_nm=axes, bounds=bounds, exaggeration=e, info=info, camera=camera,

@@ -1,7 +1,22 @@
-"""Matplotlib figures of a run: trace/retrace height images with µm axes and an nm colour bar."""
+"""Matplotlib height images of a run, on honest colour scales.
+
+Conventions shared by every 2-D height image of a run (``image_*.png``, ``figure_*.png``):
+
+* heights are drawn **above the substrate**: each image's substrate level is the median of its
+  pixels below the image mean (the background that NSL2's binarization, eq. 8, also sees; for a
+  grating the trench floor), see :func:`substrate_level`;
+* one colour scale for the whole run: limits are the 0.1st and 99.9th percentiles of all the
+  run's referenced trace/retrace heights (:func:`robust_limits`), never a fixed 0; pixels outside
+  are drawn in the over/under colours (blue below, cyan above) and the colour bar's pointed ends
+  say so;
+* the trace − retrace difference (raw heights, nm) on a symmetric diverging scale whose limit is
+  the 99.9th percentile of |difference| over every controller of the run, so the controllers'
+  mismatches compare at a glance.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import matplotlib
@@ -12,9 +27,13 @@ import numpy as np  # noqa: E402
 
 from afmsim.samples.heightmap import HeightMap  # noqa: E402
 
-__all__ = ["plot_trace_retrace", "height_extent_um"]
+__all__ = ["plot_trace_retrace", "height_extent_um", "substrate_level", "above_substrate", "robust_limits",
+           "ColourScale", "run_colour_scales", "height_cmap", "show_height", "PERCENTILES"]
 
 UM, NM = 1e-6, 1e-9
+#: Robust colour limits: these percentiles of the run's heights (the rest is drawn over/under).
+PERCENTILES = (0.1, 99.9)
+_UNDER, _OVER = "#1f4bff", "#00e5ff"
 
 
 def height_extent_um(hmap: HeightMap) -> list[float]:
@@ -23,20 +42,86 @@ def height_extent_um(hmap: HeightMap) -> list[float]:
     return [(hmap.x[0] - dx / 2) / UM, (hmap.x[-1] + dx / 2) / UM, (hmap.y[0] - dy / 2) / UM, (hmap.y[-1] + dy / 2) / UM]
 
 
-def plot_trace_retrace(trace: HeightMap, retrace: HeightMap, path, *, title: str) -> Path:
-    """Trace and retrace side by side on one height scale (nm, minimum at 0), axes in µm."""
-    base = min(trace.z.min(), retrace.z.min())
-    vmax = (max(trace.z.max(), retrace.z.max()) - base) / NM
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.6), constrained_layout=True)
+def substrate_level(z: np.ndarray) -> float:
+    """The substrate height of an image (same unit as ``z``): the median of the pixels below the
+    image mean — the background that the NSL2 binarization (eq. 8, threshold = mean) sees."""
+    z = np.asarray(z, dtype=np.float64)
+    below = z[z < z.mean()]
+    return float(np.median(below)) if below.size else float(z.min())
+
+
+def above_substrate(hmap: HeightMap) -> HeightMap:
+    """The map with its substrate level (:func:`substrate_level`) at 0."""
+    return replace(hmap, z=hmap.z - substrate_level(hmap.z))
+
+
+def robust_limits(arrays, percentiles=PERCENTILES) -> tuple[float, float]:
+    """(low, high): the given percentiles of all values of ``arrays`` pooled (never a fixed 0)."""
+    pooled = np.concatenate([np.ravel(a) for a in arrays])
+    lo, hi = (float(v) for v in np.percentile(pooled, percentiles))
+    if hi <= lo:
+        hi = lo + max(abs(lo) * 1e-3, 1e-12)
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class ColourScale:
+    """Height limits (nm, above substrate) and the trace − retrace limit (nm) of one run."""
+
+    height_nm: tuple[float, float]
+    difference_nm: float
+
+
+def run_colour_scales(pairs: dict) -> ColourScale:
+    """The run's colour scales from ``{controller: (trace, retrace)}`` (:mod:`module doc <afmsim.report.figures>`)."""
+    heights = [above_substrate(m).z / NM for pair in pairs.values() for m in pair]
+    diffs = [np.abs(t.z - r.z) / NM for t, r in pairs.values()]
+    limit = float(np.percentile(np.concatenate([d.ravel() for d in diffs]), PERCENTILES[1]))
+    return ColourScale(robust_limits(heights), max(limit, 1e-3))
+
+
+def height_cmap(name: str = "afmhot"):
+    """A copy of ``name`` with the over/under colours of out-of-range pixels."""
+    return plt.get_cmap(name).with_extremes(under=_UNDER, over=_OVER)
+
+
+def _extend(values: np.ndarray, lo: float, hi: float) -> str:
+    below, above = bool(np.any(values < lo)), bool(np.any(values > hi))
+    return {(True, True): "both", (True, False): "min", (False, True): "max"}.get((below, above), "neither")
+
+
+def show_height(ax, hmap: HeightMap, limits_nm) -> matplotlib.image.AxesImage:
+    """Draw a map above its substrate (nm) on ``limits_nm``; axes in µm."""
+    shown = ax.imshow(above_substrate(hmap).z / NM, origin="lower", extent=height_extent_um(hmap),
+                      cmap=height_cmap(), vmin=limits_nm[0], vmax=limits_nm[1], interpolation="nearest")
+    ax.set_xlabel("x (µm)")
+    return shown
+
+
+def plot_trace_retrace(trace: HeightMap, retrace: HeightMap, path, *, title: str, scale: ColourScale | None = None) -> Path:
+    """Trace, retrace (above substrate, run colour scale) and trace − retrace (nm), axes in µm.
+
+    ``scale`` is the run's :class:`ColourScale` (by default this pair's own).
+    """
+    scale = scale or run_colour_scales({"": (trace, retrace)})
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.9), layout="constrained", sharey=True)
+    heights = np.concatenate([above_substrate(m).z.ravel() / NM for m in (trace, retrace)])
     for ax, image, label in zip(axes, (trace, retrace), ("trace (left → right)", "retrace (right → left)")):
-        shown = ax.imshow((image.z - base) / NM, origin="lower", extent=height_extent_um(image), cmap="afmhot",
-                          vmin=0.0, vmax=vmax, interpolation="nearest")
+        shown = show_height(ax, image, scale.height_nm)
         ax.set_title(label)
-        ax.set_xlabel("x (µm)")
-        ax.set_ylabel("y (µm)")
-    fig.colorbar(shown, ax=axes, label="height (nm)", shrink=0.9)
+    axes[0].set_ylabel("y (µm)")
+    fig.colorbar(shown, ax=axes[:2], label="height above substrate (nm)", shrink=0.92,
+                 extend=_extend(heights, *scale.height_nm))
+    diff = (trace.z - retrace.z) / NM
+    lim = scale.difference_nm
+    cmap = plt.get_cmap("RdBu_r").with_extremes(under="#301060", over="#602000")
+    shown = axes[2].imshow(diff, origin="lower", extent=height_extent_um(trace), cmap=cmap, vmin=-lim, vmax=lim,
+                           interpolation="nearest")
+    axes[2].set_title("trace − retrace (mismatch)")
+    axes[2].set_xlabel("x (µm)")
+    fig.colorbar(shown, ax=axes[2], label="trace − retrace (nm)", shrink=0.92, extend=_extend(diff, -lim, lim))
     fig.suptitle(title)
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
     return path

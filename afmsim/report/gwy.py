@@ -12,7 +12,8 @@ One ``GwyDataField`` per channel, channel ``i`` stored under the container keys 
 
 Because ``xreal/xres`` and ``xoff + dx/2`` can differ from the original floats by an ulp, the
 exact pixel size and origin are also kept (as ``repr`` strings) in the channel's metadata
-container ``/i/meta`` (visible in Gwyddion's metadata browser); :func:`read_gwy` uses them only
+container ``/i/meta`` (visible in Gwyddion's metadata browser, beside any ``meta`` text the writer
+adds, e.g. a run's line rate and scenario); :func:`read_gwy` uses them only
 when they agree with the geometry fields, so a file cropped or resampled in Gwyddion is still
 read from its own geometry.
 """
@@ -38,7 +39,7 @@ _LENGTH_UNITS = {"m": 1.0, "mm": 1e-3, "µm": 1e-6, "um": 1e-6, "\u03bcm": 1e-6,
                  "pm": 1e-12, "Å": 1e-10}
 
 
-def write_gwy(path, channels: dict[str, HeightMap]) -> Path:
+def write_gwy(path, channels: dict[str, HeightMap], meta: dict[str, str] | None = None) -> Path:
     """Write height maps as the channels of one Gwyddion ``.gwy`` file, atomically.
 
     Parameters
@@ -49,6 +50,9 @@ def write_gwy(path, channels: dict[str, HeightMap]) -> Path:
     channels : dict[str, HeightMap]
         Channel title (e.g. ``"trace none"``, ``"retrace diapi"``, ``"topography"``) → map,
         stored in dict order as channels 0, 1, …
+    meta : dict[str, str], optional
+        Text added to every channel's metadata (Gwyddion's metadata browser), e.g. the scan's
+        line rate and the scenario that made it.
 
     Returns
     -------
@@ -77,11 +81,13 @@ def write_gwy(path, channels: dict[str, HeightMap]) -> Path:
         container[f"/{i}/data/title"] = title
         # gwyfile guesses typecode 'c' (single char) for 1-character strings; Gwyddion wants 's'.
         container.typecodes[f"/{i}/data/title"] = "s"
-        meta = GwyContainer()
-        meta[_META_PIXEL] = f"{dx!r} {dy!r}"
-        meta[_META_ORIGIN] = f"{x0!r} {y0!r}"
-        meta.typecodes.update({k: "s" for k in meta})
-        container[f"/{i}/meta"] = meta
+        info = GwyContainer()
+        info[_META_PIXEL] = f"{dx!r} {dy!r}"
+        info[_META_ORIGIN] = f"{x0!r} {y0!r}"
+        for key, value in (meta or {}).items():
+            info[str(key)] = str(value)
+        info.typecodes.update({k: "s" for k in info})
+        container[f"/{i}/meta"] = info
         container[f"/{i}/data/visible"] = i == 0
         container.typecodes[f"/{i}/data/visible"] = "b"
 

@@ -1,8 +1,8 @@
 """Matplotlib analogues of the paper's figures.
 
 * :func:`plot_scan_figure` — Fig. 10–13: (a) trace, (b) retrace, (c) the cross-section through the
-  central micro-lens (trace vs retrace, with a magnified inset where they differ most) or, for a
-  grating, the row-averaged profile across the lines.
+  central micro-lens (trace vs retrace) or, for a grating, the row-averaged profile across the
+  lines, (d) its magnified part where trace and retrace differ most.
 * :func:`plot_binarized` — the binarized trace/retrace images that NSL2 (eq. 8) compares.
 * :func:`plot_identification_loops` / :func:`plot_identification_errors` — Fig. 6 / Fig. 7:
   measured loop vs model loops, and trace/retrace voltage errors vs displacement.
@@ -24,7 +24,7 @@ from afmsim.metrics import lens_centres  # noqa: E402
 from afmsim.metrics.nsl2 import binarize, nsl2  # noqa: E402
 from afmsim.samples.heightmap import HeightMap  # noqa: E402
 
-from .figures import height_extent_um  # noqa: E402
+from .figures import ColourScale, above_substrate, height_extent_um, run_colour_scales, show_height  # noqa: E402
 
 __all__ = ["plot_scan_figure", "plot_binarized", "plot_identification_loops", "plot_identification_errors",
            "plot_time_saving", "central_lens"]
@@ -51,71 +51,77 @@ def _cross(ax, xy, style):
                 linestyle="none", **style)
 
 
-def plot_scan_figure(trace: HeightMap, retrace: HeightMap, path, *, kind: str, title: str) -> Path:
-    """Fig. 10–13 analogue for one controller: trace, retrace and a cross-section panel.
+def plot_scan_figure(trace: HeightMap, retrace: HeightMap, path, *, kind: str, title: str,
+                     scale: ColourScale | None = None) -> Path:
+    """Fig. 10–13 analogue for one controller: (a) trace, (b) retrace, (c) a cross-section, (d) its zoom.
 
-    Micro-lenses (and other samples): the scan line through the central lens of the trace image
-    (white cross; its trace position is shown dashed on the retrace, as in Fig. 10), trace vs
-    retrace heights with a 5× inset around the largest difference. Gratings: the profile averaged
-    over all lines, trace vs retrace.
+    (a)/(b): heights above the substrate on the run's colour scale (``scale``, see
+    :mod:`afmsim.report.figures`; by default this pair's own), equal panels sharing axes.
+    (c) Micro-lenses (and other samples): the scan line through the central lens of the trace
+    image (white cross; its trace position is shown dashed on the retrace, as in Fig. 10), trace
+    vs retrace heights; gratings: the profile averaged over all lines. (d) The part of (c) in the
+    grey box, around the largest trace/retrace difference (paper Figs. 11–13's magnified view), in
+    its own panel so that it hides nothing.
     """
-    base = min(trace.z.min(), retrace.z.min())
-    vmax = (max(trace.z.max(), retrace.z.max()) - base) / NM
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), gridspec_kw={"width_ratios": [1, 1, 1.3]})
-    fig.subplots_adjust(left=0.04, right=0.98, bottom=0.11, top=0.86, wspace=0.45)
+    scale = scale or run_colour_scales({"": (trace, retrace)})
+    fig = plt.figure(figsize=(17, 4.9), layout="constrained")
+    grid = fig.add_gridspec(1, 6, width_ratios=[1, 1, 0.06, 0.1, 1.25, 0.8])  # column 3: room for the bar's label
+    ax_a = fig.add_subplot(grid[0])
+    ax_b = fig.add_subplot(grid[1], sharex=ax_a, sharey=ax_a)
+    ax_bar, ax, ax_zoom = fig.add_subplot(grid[2]), fig.add_subplot(grid[4]), fig.add_subplot(grid[5])
     centre_t = central_lens(trace) if kind != "grating" else None
     centre_r = central_lens(retrace) if kind != "grating" else None
-    for ax, image, label in zip(axes[:2], (trace, retrace), ("(a) trace", "(b) retrace")):
-        shown = ax.imshow((image.z - base) / NM, origin="lower", extent=height_extent_um(image), cmap="afmhot",
-                          vmin=0.0, vmax=vmax, interpolation="nearest")
-        ax.set_title(label)
-        ax.set_xlabel("x (µm)")
-        ax.set_ylabel("y (µm)")
-    fig.colorbar(shown, ax=axes[1], label="height (nm)", fraction=0.046, pad=0.03)
-    _cross(axes[0], centre_t, {})
+    for a, image, label in zip((ax_a, ax_b), (trace, retrace), ("(a) trace", "(b) retrace")):
+        shown = show_height(a, image, scale.height_nm)
+        a.set_title(label)
+    ax_a.set_ylabel("y (µm)")
+    ax_b.tick_params(labelleft=False)
+    heights = np.concatenate([above_substrate(m).z.ravel() / NM for m in (trace, retrace)])
+    lo, hi = scale.height_nm
+    extend = {(True, True): "both", (True, False): "min", (False, True): "max"}.get(
+        (bool(np.any(heights < lo)), bool(np.any(heights > hi))), "neither")
+    fig.colorbar(shown, cax=ax_bar, label="height above substrate (nm)", extend=extend)
+    _cross(ax_a, centre_t, {})
     if centre_t is not None:
-        axes[1].plot(centre_t[0] / UM, centre_t[1] / UM, marker="+", markersize=16, markeredgewidth=1.2,
-                     color="white", alpha=0.6, linestyle="none")
-        axes[1].axvline(centre_t[0] / UM, color="white", linestyle="--", linewidth=0.8, alpha=0.7)
-    _cross(axes[1], centre_r, {})
+        ax_b.plot(centre_t[0] / UM, centre_t[1] / UM, marker="+", markersize=16, markeredgewidth=1.2,
+                  color="white", alpha=0.6, linestyle="none")
+        ax_b.axvline(centre_t[0] / UM, color="white", linestyle="--", linewidth=0.8, alpha=0.7)
+    _cross(ax_b, centre_r, {})
 
     x_um = trace.x / UM
-    ax = axes[2]
+    t_prof, r_prof = above_substrate(trace).z, above_substrate(retrace).z
     if kind == "grating":
-        t_prof, r_prof = trace.z.mean(axis=0), retrace.z.mean(axis=0)
+        t_prof, r_prof = t_prof.mean(axis=0), r_prof.mean(axis=0)
         ax.set_title("(c) profile averaged over all lines")
     else:
         y0 = centre_t[1] if centre_t is not None else trace.y.mean()
         row = int(np.clip(np.rint((y0 - trace.origin[1]) / trace.pixel_size[1]), 0, trace.shape[0] - 1))
-        t_prof, r_prof = trace.z[row], retrace.z[row]
+        t_prof, r_prof = t_prof[row], r_prof[row]
         what = "central lens" if centre_t is not None else "image centre"
-        ax.set_title(f"(c) cross-section through the {what} (y = {trace.y[row] / UM:.2f} µm)")
-        for a in axes[:2]:
+        ax.set_title(f"(c) line through the {what}, y = {trace.y[row] / UM:.2f} µm")
+        for a in (ax_a, ax_b):
             a.axhline(trace.y[row] / UM, color="cyan", linewidth=0.8, alpha=0.8)
-    ax.plot(x_um, t_prof / NM, "-", color="tab:blue", label="trace (T)")
-    ax.plot(x_um, r_prof / NM, "--", color="tab:red", label="retrace (R)")
+    for target in (ax, ax_zoom):
+        target.plot(x_um, t_prof / NM, "-", color="tab:blue", label="trace (T)")
+        target.plot(x_um, r_prof / NM, "--", color="tab:red", label="retrace (R)")
+        target.set_xlabel("x (µm)")
+        target.grid(alpha=0.3)
     if centre_t is not None:
         ax.axvline(centre_t[0] / UM, color="tab:blue", linewidth=0.7, alpha=0.5)
     if centre_r is not None:
         ax.axvline(centre_r[0] / UM, color="tab:red", linewidth=0.7, alpha=0.5, linestyle="--")
-    ax.set_xlabel("x (µm)")
     ax.set_ylabel("height (nm)")
-    ax.grid(alpha=0.3)
-    if kind != "grating" and len(x_um) >= 8:
-        # 5×-style inset around the largest trace/retrace difference (paper Figs. 11–13).
-        k = int(np.argmax(np.abs(t_prof - r_prof)))
-        half = max(2, len(x_um) // 20)
-        lo, hi = max(0, k - half), min(len(x_um) - 1, k + half)
-        box = _free_corner(x_um, np.concatenate([t_prof, r_prof]) / NM)
-        inset = ax.inset_axes(box)
-        inset.plot(x_um[lo:hi + 1], t_prof[lo:hi + 1] / NM, "-", color="tab:blue")
-        inset.plot(x_um[lo:hi + 1], r_prof[lo:hi + 1] / NM, "--", color="tab:red")
-        inset.tick_params(labelsize=7)
-        inset.set_title(f"zoom {x_um[lo]:.1f}–{x_um[hi]:.1f} µm", fontsize=7)
-        ax.indicate_inset_zoom(inset, edgecolor="0.4")
-        ax.legend(loc="upper right" if box[0] < 0.3 and box[1] > 0.5 else "upper left", fontsize=8)
-    else:
-        ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="best", fontsize=8)
+    k = int(np.argmax(np.abs(t_prof - r_prof)))
+    half = max(2, len(x_um) // 16)
+    lo_i, hi_i = max(0, k - half), min(len(x_um) - 1, k + half)
+    window = np.concatenate([t_prof[lo_i:hi_i + 1], r_prof[lo_i:hi_i + 1]]) / NM
+    pad = max(0.05 * np.ptp(window), 0.5)
+    ax_zoom.set_xlim(x_um[lo_i], x_um[hi_i])
+    ax_zoom.set_ylim(window.min() - pad, window.max() + pad)
+    ax_zoom.set_title(f"(d) zoom: |T − R| up to {abs(t_prof[k] - r_prof[k]) / NM:.0f} nm")
+    ax.add_patch(plt.Rectangle((x_um[lo_i], window.min() - pad), x_um[hi_i] - x_um[lo_i], np.ptp(window) + 2 * pad,
+                               fill=False, edgecolor="0.35", linewidth=1.0))
     fig.suptitle(title)
     path = Path(path)
     fig.savefig(path, dpi=_DPI)
@@ -123,27 +129,12 @@ def plot_scan_figure(trace: HeightMap, retrace: HeightMap, path, *, kind: str, t
     return path
 
 
-def _free_corner(x, y) -> list[float]:
-    """Inset box (axes fraction) among four corners and the bottom centre that covers the fewest
-    curve points (x repeated for each curve in ``y``)."""
-    xs = np.tile(x, len(y) // len(x))
-    fx = (xs - xs.min()) / max(np.ptp(xs), 1e-300)
-    fy = (y - y.min()) / max(np.ptp(y), 1e-300)
-    fx, fy = 0.03 + 0.94 * fx, 0.05 + 0.9 * fy  # matplotlib's default data margins, roughly
-    boxes = [[0.64, 0.56, 0.34, 0.4], [0.02, 0.56, 0.34, 0.4], [0.64, 0.04, 0.34, 0.4],
-             [0.02, 0.04, 0.34, 0.4], [0.33, 0.04, 0.34, 0.4]]
-    hits = [np.count_nonzero((fx > b[0] - 0.03) & (fx < b[0] + b[2] + 0.03) & (fy > b[1] - 0.05)
-                             & (fy < b[1] + b[3] + 0.05)) for b in boxes]
-    return boxes[int(np.argmin(hits))]
-
-
 def plot_binarized(images: dict, path, *, title: str) -> Path:
     """Binarized trace, retrace (threshold = each image's mean, eq. 8) and their disagreement,
     one row per controller; NSL2 in the row label. ``images``: controller → (trace, retrace)."""
     n = len(images)
-    fig, axes = plt.subplots(n, 3, figsize=(10, 3.1 * n + 0.6), squeeze=False)
-    fig.subplots_adjust(left=0.1, right=0.98, bottom=0.5 / (3.1 * n + 0.6), top=1 - 0.7 / (3.1 * n + 0.6),
-                        wspace=0.25, hspace=0.45)
+    fig, axes = plt.subplots(n, 3, figsize=(10, 2.9 * n + 0.8), squeeze=False, layout="constrained",
+                             sharex=True, sharey=True)
     for row, (name, (trace, retrace)) in zip(axes, images.items()):
         bt, br = binarize(trace.z), binarize(retrace.z)
         try:
@@ -151,14 +142,15 @@ def plot_binarized(images: dict, path, *, title: str) -> Path:
         except ValueError:
             d = "NSL2 undefined"
         for ax, img, label, cmap in zip(row, (bt, br, np.abs(bt - br)),
-                                        ("trace (binarized)", "retrace (binarized)", "differs"),
+                                        ("trace (binarized)", "retrace (binarized)", "pixels that differ"),
                                         ("gray", "gray", "Reds")):
             ax.imshow(img, origin="lower", extent=height_extent_um(trace), cmap=cmap, vmin=0, vmax=1,
                       interpolation="nearest")
             ax.set_title(f"{name}: {label}", fontsize=9)
-            ax.set_xlabel("x (µm)", fontsize=8)
             ax.tick_params(labelsize=7)
         row[0].set_ylabel(f"{d}\ny (µm)", fontsize=9)
+    for ax in axes[-1]:
+        ax.set_xlabel("x (µm)", fontsize=8)
     fig.suptitle(title)
     path = Path(path)
     fig.savefig(path, dpi=_DPI)

@@ -8,8 +8,9 @@ Files written into the run folder:
 * ``render_<controller>_trace.png`` / ``render_<controller>_retrace.png``
 * ``render_sample.png`` — the sample mesh when there is one, else the true height map.
 
-All views share one ``z_range_m`` (min/max over the true sample height map and every image), so
-colours, vertical exaggeration and camera are identical across files and comparable by eye.
+All views show heights above the substrate and share one ``z_range_m`` (min/max over the true
+sample height map and every image) and one vertical exaggeration, so colours, relief and camera
+are identical across files and comparable by eye.
 """
 
 from __future__ import annotations
@@ -20,32 +21,87 @@ import numpy as np
 
 from afmsim.samples.heightmap import HeightMap
 
-__all__ = ["RENDER_SIZE", "common_z_range", "render_run_views", "load_run_arrays", "render_names"]
+__all__ = ["RENDER_SIZE", "common_z_range", "render_run_views", "render_jobs", "render_unavailable", "load_run_arrays",
+           "render_names"]
 
 #: Window size of every run render (width, height), pixels.
 RENDER_SIZE = (1000, 750)
 
 
 def common_z_range(truth: HeightMap | None, images: dict) -> tuple[float, float]:
-    """(low, high) in metres over the true sample and every trace/retrace image."""
-    arrays = [truth.z] if truth is not None else []
+    """(low, high) in metres over the true sample and every trace/retrace image, each above its
+    substrate (:func:`afmsim.report.figures.substrate_level`)."""
+    from .figures import above_substrate
+
+    arrays = [above_substrate(truth).z] if truth is not None else []
     for trace, retrace in images.values():
-        arrays += [trace.z, retrace.z]
+        arrays += [above_substrate(trace).z, above_substrate(retrace).z]
     lo, hi = float(min(a.min() for a in arrays)), float(max(a.max() for a in arrays))
     # Whole nanometres outward (ignoring sub-0.01 nm round-off) so colour-bar labels read cleanly.
     nm = 1e-9
     return float(np.floor(lo / nm + 0.01) * nm), float(np.ceil(hi / nm - 0.01) * nm)
 
 
-def render_names(controllers) -> list[str]:
-    """File names of the renders a run with these controllers gets."""
-    names = [f"render_{c}_{d}.png" for c in controllers for d in ("trace", "retrace")]
+def render_names(controllers, which: str = "all", best: str | None = None) -> list[str]:
+    """File names of the renders a run with these controllers gets (``which``: all or key)."""
+    if which == "key":
+        chosen = list(dict.fromkeys(c for c in ("none", best) if c in controllers))
+        names = [f"render_{c}_trace.png" for c in chosen]
+    else:
+        names = [f"render_{c}_{d}.png" for c in controllers for d in ("trace", "retrace")]
     return names + ["render_sample.png"]
+
+
+def render_jobs(images: dict, truth: HeightMap, mesh, folder, *, name: str = "run", which: str = "all",
+                best: str | None = None, interactive: bool = False, window_size=RENDER_SIZE) -> list[tuple]:
+    """The renders of a run as ``(function, args)`` pairs, independent of one another.
+
+    Every view shows heights above its substrate on one z range (:func:`common_z_range`) with one
+    vertical exaggeration (chosen from the scan's lateral size and that range), so the sample and
+    every scan are drawn alike. ``which="key"`` keeps the sample and the traces of ``none`` and
+    ``best``; ``"all"`` every controller's trace and retrace.
+    """
+    from afmsim.render import z_exaggeration_for
+
+    from .figures import above_substrate
+
+    folder = Path(folder)
+    z_range = common_z_range(truth, images)
+    first = next(iter(images.values()))[0] if images else truth
+    exaggeration = z_exaggeration_for(max(first.size), z_range[1] - z_range[0])
+    common = dict(z_range_m=z_range, window_size=window_size, interactive=interactive, z_exaggeration=exaggeration)
+    wanted = set(render_names(list(images), which, best))
+    jobs = []
+    for controller, (trace, retrace) in images.items():
+        for direction, hmap in (("trace", trace), ("retrace", retrace)):
+            file = f"render_{controller}_{direction}.png"
+            if file in wanted:
+                jobs.append((_render_map, (above_substrate(hmap), folder / file,
+                                           f"{name}: {controller} — {direction}", common)))
+    if mesh is not None:
+        jobs.append((_render_mesh, (mesh, folder / "render_sample.png", f"{name}: true sample (mesh)", common)))
+    else:
+        jobs.append((_render_map, (above_substrate(truth), folder / "render_sample.png",
+                                   f"{name}: true sample (height map)", common)))
+    return jobs
+
+
+def _render_map(hmap, path, title, common):
+    from afmsim.render import render_height_map
+
+    return render_height_map(hmap, path, title=title, **common)
+
+
+def _render_mesh(mesh, path, title, common):
+    from afmsim.render import render_mesh
+
+    return render_mesh(mesh, path, title=title, **common)
 
 
 def render_run_views(images: dict, truth: HeightMap, mesh, folder, *, name: str = "run",
                      interactive: bool = False, window_size=RENDER_SIZE) -> tuple[list[Path], str | None]:
-    """Render every controller's trace and retrace and the sample into ``folder``.
+    """Render every controller's trace and retrace and the sample into ``folder`` (:func:`render_jobs`,
+    one after the other).
 
     Parameters
     ----------
@@ -66,27 +122,21 @@ def render_run_views(images: dict, truth: HeightMap, mesh, folder, *, name: str 
         The PNGs written, and ``None`` — or, when this machine cannot render, no paths and a
         one-line warning saying why (the run is not failed for it).
     """
-    from afmsim.render import render_height_map, render_mesh, rendering_available
+    warning = render_unavailable(interactive)
+    if warning:
+        return [], warning
+    jobs = render_jobs(images, truth, mesh, folder, name=name, interactive=interactive, window_size=window_size)
+    return [func(*args) for func, args in jobs], None
 
-    if not interactive:
-        ok, reason = rendering_available()
-        if not ok:
-            return [], f"3D renders skipped: off-screen rendering is not available here ({reason})"
-    folder = Path(folder)
-    z_range = common_z_range(truth, images)
-    common = dict(z_range_m=z_range, window_size=window_size, interactive=interactive)
-    written = []
-    for controller, (trace, retrace) in images.items():
-        for direction, hmap in (("trace", trace), ("retrace", retrace)):
-            written.append(render_height_map(
-                hmap, folder / f"render_{controller}_{direction}.png",
-                title=f"{name}: {controller} — {direction}", **common))
-    if mesh is not None:
-        written.append(render_mesh(mesh, folder / "render_sample.png", title=f"{name}: true sample (mesh)", **common))
-    else:
-        written.append(render_height_map(truth, folder / "render_sample.png",
-                                         title=f"{name}: true sample (height map)", **common))
-    return written, None
+
+def render_unavailable(interactive: bool = False) -> str | None:
+    """None where off-screen renders can be made here, else the one-line warning saying why."""
+    from afmsim.render import rendering_available
+
+    if interactive:
+        return None
+    ok, reason = rendering_available()
+    return None if ok else f"3D renders skipped: off-screen rendering is not available here ({reason})"
 
 
 def _hmap(arrays, key: str, grid: str) -> HeightMap:

@@ -1,50 +1,126 @@
-"""Writing a scenario run into its folder: images, raw arrays, metrics."""
+"""Writing a scenario run into its folder: images, raw arrays, metrics, figures, renders, report."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from afmsim.experiment import ScenarioResult
-from afmsim.runio import write_json
+from afmsim.runio import git_revision, versions, write_json
+from afmsim.workers import ordered_map, worker_pool
 
-from .document import write_report
-from .figures import plot_trace_retrace
+from .document import best_controller, write_report
+from .figures import plot_trace_retrace, run_colour_scales
 from .gwy import write_gwy
 from .paper_figures import plot_binarized, plot_scan_figure
-from .renders import render_run_views
+from .renders import render_jobs, render_unavailable
 from .tables import nsl2_markdown, write_nsl2_table
 
-__all__ = ["write_run", "gwy_channels"]
+__all__ = ["write_run", "gwy_channels", "RENDER_CHOICES"]
+
+#: ``renders=`` of :func:`write_run`: no 3D renders, the key ones (sample, ``none`` and the best
+#: controller's trace), or all (every controller's trace and retrace, and the sample).
+RENDER_CHOICES = ("none", "key", "all")
 
 
-def gwy_channels(images: dict, truth) -> dict:
-    """The ``images.gwy`` channels: "trace <c>", "retrace <c>" per controller, then "topography"."""
+def gwy_channels(frames: list, truth) -> dict:
+    """The ``images.gwy`` channels: "trace <c>", "retrace <c>" per controller of experiment 1, the
+    same with " (experiment k)" for the other experiments, then "topography"."""
     channels = {}
-    for name, (trace, retrace) in images.items():
-        channels[f"trace {name}"] = trace
-        channels[f"retrace {name}"] = retrace
+    for k, images in enumerate(frames, 1):
+        suffix = "" if k == 1 else f" (experiment {k})"
+        for name, (trace, retrace) in images.items():
+            channels[f"trace {name}{suffix}"] = trace
+            channels[f"retrace {name}{suffix}"] = retrace
     channels["topography"] = truth
     return channels
 
 
-def write_run(result: ScenarioResult, folder, *, renders: bool = True) -> list[Path]:
-    """Write ``metrics.json``, ``images.npz``, ``scenario.yaml``, one PNG per controller, and the
-    report: ``images.gwy``, ``figure_<c>.png`` (Fig. 10–13 analogue), ``binarized.png``,
-    ``nsl2_table.md/.csv`` (Table 3/4 analogue), 3D ``render_*.png`` (skipped with a warning in
-    the report where this machine cannot render, or with ``renders=False``), ``report.html``
-    (self-contained) and ``report.md``.
+def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=None, workers: int = 1) -> list[Path]:
+    """Write a run's files into ``folder`` and return their paths.
 
-    ``images.npz`` holds ``trace_<controller>``/``retrace_<controller>`` (heights in metres, rows =
-    lines, columns = pixels left → right), ``truth`` and ``dilated`` (the sample and the surface the
-    tip sees, on the simulation grid), and the grids' ``*_pixel_size_m``/``*_origin_m``.
+    ``metrics.json``, ``scenario.yaml``, ``images.npz``, ``images.gwy`` (every experiment, with the
+    line rate and the scenario in each channel's metadata), per controller ``image_<c>.png``
+    (trace, retrace, trace − retrace) and ``figure_<c>.png`` (Fig. 10–13 analogue),
+    ``binarized.png``, ``nsl2_table.md/.csv`` (Table 3/4 analogue), 3D ``render_*.png`` as chosen
+    by ``renders`` (:data:`RENDER_CHOICES`; skipped with a warning in the report where this machine
+    cannot render), ``report.html`` (self-contained) and ``report.md``.
+
+    Figures and renders are drawn on ``workers`` forked processes (:mod:`afmsim.workers`);
+    ``progress(stage, done, total)`` hears of the "figures", "renders" and "report" stages.
+
+    ``images.npz`` holds ``trace_<controller>``/``retrace_<controller>`` of experiment 1 (heights in
+    metres, rows = lines, columns = pixels left → right), ``truth`` and ``dilated`` (the sample and
+    the surface the tip sees, on the simulation grid), and the grids' ``*_pixel_size_m``/``*_origin_m``.
     """
+    if renders not in RENDER_CHOICES:
+        raise ValueError(f"renders must be one of {', '.join(RENDER_CHOICES)}, got {renders!r}")
+    started = time.perf_counter()
     folder = Path(folder)
-    written = []
-    write_json(folder / "metrics.json", result.metrics())
-    (folder / "scenario.yaml").write_text(yaml.safe_dump(result.scenario.model_dump(mode="json"), sort_keys=False))
+    scenario, kind = result.scenario, result.scenario.sample.kind
+    metrics = result.metrics()
+    write_json(folder / "metrics.json", metrics)
+    scenario_yaml = yaml.safe_dump(scenario.model_dump(mode="json"), sort_keys=False, allow_unicode=True)
+    (folder / "scenario.yaml").write_text(scenario_yaml)
+    pairs = {name: (im.trace, im.retrace) for name, im in result.images.items()}
+    best = best_controller(metrics)
+    jobs, warnings = [], []
+    if renders != "none":
+        warning = render_unavailable()
+        if warning:
+            warnings.append(warning)
+        else:
+            jobs += [("renders", func, args, {}) for func, args in
+                     render_jobs(pairs, result.truth, result.mesh, folder, name=scenario.name, which=renders, best=best)]
+    scale = run_colour_scales(pairs) if pairs else None
+    for name, (trace, retrace) in pairs.items():
+        title = f"{scenario.name}: controller '{name}' (experiment 1)"
+        jobs.append(("figures", plot_scan_figure, (trace, retrace, folder / f"figure_{name}.png"),
+                     {"kind": kind, "title": title, "scale": scale}))
+        jobs.append(("figures", plot_trace_retrace, (trace, retrace, folder / f"image_{name}.png"),
+                     {"title": title, "scale": scale}))
+    if pairs:
+        jobs.append(("figures", plot_binarized, (pairs, folder / "binarized.png"),
+                     {"title": f"{scenario.name}: binarized images used for NSL2 (experiment 1)"}))
+    counts = {stage: sum(j[0] == stage for j in jobs) for stage in ("figures", "renders")}
+    done = dict.fromkeys(counts, 0)
+
+    def tick(index, _done, _total):
+        stage = jobs[index][0]
+        done[stage] += 1
+        if progress is not None:
+            progress(stage, done[stage], counts[stage])
+
+    written = [folder / "metrics.json", folder / "scenario.yaml"]
+    with worker_pool(min(workers, max(1, len(jobs)))) as executor:
+        futures = ordered_map(executor, _call, [(func, args, kw) for _, func, args, kw in jobs], tick, wait=False)
+        written += _write_arrays(result, folder, scenario_yaml)
+        paths = futures()
+    written += paths
+    if progress is not None:
+        progress("report", 0, 1)
+    table, table_paths = write_nsl2_table(metrics, kind, folder)
+    written += table_paths
+    by_stage = {stage: [p for (s, *_), p in zip(jobs, paths) if s == stage] for stage in counts}
+    provenance = {"afmsim": versions()["afmsim"], **git_revision(), "date_utc": time.strftime("%Y-%m-%d %H:%M UTC"),
+                  **result.timings, "figures_s": time.perf_counter() - started}
+    written += write_report(folder, result=result, metrics=metrics, nsl2_md=nsl2_markdown(table),
+                            scenario_yaml=scenario_yaml, figures=by_stage["figures"], renders=by_stage["renders"],
+                            renders_choice=renders, best=best, warnings=warnings, provenance=provenance)
+    if progress is not None:
+        progress("report", 1, 1)
+    return written
+
+
+def _call(func, args, kwargs):
+    return func(*args, **kwargs)
+
+
+def _write_arrays(result: ScenarioResult, folder: Path, scenario_yaml: str) -> list[Path]:
+    """``images.npz`` (experiment 1, raw metres) and ``images.gwy`` (every experiment)."""
     arrays = {"truth": result.truth.z, "dilated": result.dilated.z,
               "sample_pixel_size_m": np.array(result.truth.pixel_size), "sample_origin_m": np.array(result.truth.origin)}
     for name, images in result.images.items():
@@ -52,42 +128,15 @@ def write_run(result: ScenarioResult, folder, *, renders: bool = True) -> list[P
         arrays[f"retrace_{name}"] = images.retrace.z
         arrays[f"actual_x_trace_{name}"] = images.actual_x_trace
         arrays[f"actual_x_retrace_{name}"] = images.actual_x_retrace
-        written.append(plot_trace_retrace(images.trace, images.retrace, folder / f"image_{name}.png",
-                                          title=f"{result.scenario.name}: controller '{name}' (experiment 1)"))
     if result.images:
         first = next(iter(result.images.values())).trace
         arrays["image_pixel_size_m"] = np.array(first.pixel_size)
         arrays["image_origin_m"] = np.array(first.origin)
     np.savez_compressed(folder / "images.npz", **arrays)
-    written += [folder / "metrics.json", folder / "images.npz"]
-    written += _write_report_files(result, folder, renders=renders)
-    return written
-
-
-def _write_report_files(result: ScenarioResult, folder: Path, *, renders: bool) -> list[Path]:
-    scenario, kind = result.scenario, result.scenario.sample.kind
-    pairs = {name: (im.trace, im.retrace) for name, im in result.images.items()}
-    written = [write_gwy(folder / "images.gwy", gwy_channels(pairs, result.truth))] if pairs else []
-    metrics = result.metrics()
-    table, paths = write_nsl2_table(metrics, kind, folder)
-    written += paths
-    figures = [plot_scan_figure(trace, retrace, folder / f"figure_{name}.png", kind=kind,
-                                title=f"{scenario.name}: controller '{name}' (experiment 1)")
-               for name, (trace, retrace) in pairs.items()]
-    binarized = [plot_binarized(pairs, folder / "binarized.png",
-                                title=f"{scenario.name}: binarized images used for NSL2 (experiment 1)")] if pairs else []
-    warnings, views = [], []
-    if renders:
-        views, warning = render_run_views(pairs, result.truth, result.mesh, folder, name=scenario.name)
-        if warning:
-            warnings.append(warning)
-    else:
-        warnings.append("3D renders skipped (renders=False)")
-    written += figures + binarized + views
-    sections = [("Height images (trace / retrace)", [folder / f"image_{n}.png" for n in pairs]),
-                ("Paper figure analogues (Fig. 10–13)", figures),
-                ("Binarized images (NSL2)", binarized),
-                ("3D renders", views)]
-    written += write_report(folder, name=scenario.name, scenario_yaml=(folder / "scenario.yaml").read_text(),
-                            metrics=metrics, nsl2_md=nsl2_markdown(table), sections=sections, warnings=warnings)
+    written = [folder / "images.npz"]
+    frames = result.frames or [{n: (im.trace, im.retrace) for n, im in result.images.items()}]
+    if result.images:
+        meta = {"line rate (Hz)": repr(float(result.scenario.scan.line_rate_hz)),
+                "scenario": result.scenario.name, "scenario (YAML)": scenario_yaml}
+        written.append(write_gwy(folder / "images.gwy", gwy_channels(frames, result.truth), meta=meta))
     return written
