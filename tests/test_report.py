@@ -139,6 +139,9 @@ def test_identification_report(tmp_path):
     assert rows[-1][1:3] == ["0.08", "0.021"]
     assert "paper RMS" in (tmp_path / "table2.md").read_text()
     assert len(list(csv.reader((tmp_path / "table1.csv").open()))) == 1 + result.settings["n_operators"]
+    table1 = (tmp_path / "table1.md").read_text()
+    assert "e_ω = |ω_af − ω_ab| / |ω_ab| (paper eq. 7)" in table1 and "| e_ω (eq. 7) |" in table1
+    assert table1.count("\n| ") == 1 + result.settings["n_operators"]   # the header and one row per operator
 
 
 def test_report_explains_itself_on_its_first_screen(run_dir):

@@ -22,7 +22,8 @@ import numpy as np
 from afmsim.paper import TABLE2_MEANS, TABLE2_RATIO, TABLE3, TABLE4
 
 __all__ = ["PAPER_COLUMNS", "PAPER_TABLE3", "PAPER_TABLE4", "paper_nsl2_for", "nsl2_table", "write_nsl2_table",
-           "identification_table2", "identification_table1_csv", "markdown_table"]
+           "identification_table2", "identification_table1_csv", "identification_table1_markdown", "TABLE1_COLUMNS",
+           "markdown_table"]
 
 #: afmsim controller → the paper's NSL2 column.
 PAPER_COLUMNS = {"none": "D_N", "spi": "D_S", "diapi": "D_A", "vendor": "D_B"}
@@ -185,6 +186,22 @@ def identification_table2(result) -> tuple[str, str]:
         ratio = summarize(result.errors["diapi"]["rms_V"])["mean"] / summarize(result.errors["spi"]["rms_V"])["mean"]
         md += ["", f"DIAPI/SPI mean RMS ratio: {ratio:.2f} (paper {TABLE2_RATIO:.2f})"]
     return "\n".join(md) + "\n", buf.getvalue()
+
+
+#: What Table 1's columns mean (the paper prints them without definitions).
+TABLE1_COLUMNS = ("i: operator number; r (µm): its threshold width (eq. 5, spread over the identification data); "
+                  "ω_af / ω_ab (V/µm): its weight on the trace (rising voltage) / retrace (falling voltage) branch; "
+                  "e_ω = |ω_af − ω_ab| / |ω_ab| (paper eq. 7): how far the two branch weights differ, relative to "
+                  "the retrace weight — large where ω_ab is near zero (a ratio to a near-zero slope, not an error).")
+
+
+def identification_table1_markdown(result) -> str:
+    """Table 1 analogue as Markdown: DIAPI widths, slopes and e_ω with the column definitions."""
+    m = result.models["diapi"]
+    rows = [[str(i), f"{r * 1e6:.1f}", f"{wf * 1e-6:.4f}", f"{wb * 1e-6:.4f}", _pct(abs(e))]
+            for i, (r, wf, wb, e) in enumerate(zip(m.widths, m.weights_trace, m.weights_retrace, m.asymmetry), 1)]
+    return "\n".join(["**Table 1 analogue: identified DIAPI parameters**", "", TABLE1_COLUMNS, "",
+                      markdown_table(["i", "r (µm)", "ω_af (V/µm)", "ω_ab (V/µm)", "e_ω (eq. 7)"], rows)]) + "\n"
 
 
 def identification_table1_csv(result) -> str:
