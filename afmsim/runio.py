@@ -13,6 +13,11 @@ treat every ``.partial-`` folder as incomplete whatever it holds). Each staging 
 process dies, however it dies); the next :func:`run_folder` into the same parent folder removes
 every staging folder whose lock it can take, see :func:`remove_stale_staging`. Where ``fcntl`` is
 missing (Windows) nothing is locked and stale folders are left for the user to delete.
+
+Permissions follow the user's umask, as for any file the user creates (0755/0644 under the
+usual umask 022): the staging folder and the JSON files are created with ``os.mkdir``/``os.open``
+and mode 0777/0666, not with :mod:`tempfile`, whose 0700/0600 suit a shared temporary folder but
+would make every run private.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import secrets
 import shutil
 import subprocess
 import sys
@@ -88,14 +94,31 @@ def _jsonable(value):
     return value
 
 
+def _create_unique(parent: Path, prefix: str, create):
+    """``create(parent / (prefix + 8 random hex digits))`` on a fresh name (retried on a clash);
+    returns ``(path, what create returned)``."""
+    for _ in range(100):
+        path = Path(parent) / f"{prefix}{secrets.token_hex(4)}"
+        try:
+            return path, create(path)
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free name {prefix}* in {parent}")
+
+
 def write_json(path, data) -> None:
-    """Write JSON (numpy values converted, non-finite floats as null) atomically."""
+    """Write JSON (numpy values converted, non-finite floats as null) atomically, permissions per umask."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "w") as handle:
-        json.dump(_jsonable(data), handle, indent=2)
-        handle.write("\n")
-    os.replace(tmp, path)
+    tmp, fd = _create_unique(path.parent, f".{path.name}.",
+                             lambda p: os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+    try:
+        with os.fdopen(fd, "w") as handle:
+            json.dump(_jsonable(data), handle, indent=2)
+            handle.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def default_run_dir(kind: str, name: str, base="outputs") -> Path:
@@ -157,7 +180,7 @@ def run_folder(destination, *, config: dict, seed: int, command: str, extra: dic
         raise FileExistsError(f"output folder {destination} already exists: choose another --out or remove it")
     destination.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_staging(destination.parent)
-    staging = Path(tempfile.mkdtemp(dir=destination.parent, prefix=f".{destination.name}.partial-"))
+    staging, _ = _create_unique(destination.parent, f".{destination.name}.partial-", lambda p: os.mkdir(p, 0o777))
     lock = None
     started = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     try:

@@ -2,7 +2,9 @@
 that looks complete; a killed run's hidden staging folder is removed by the next run."""
 
 import json
+import os
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -10,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from afmsim.runio import remove_stale_staging, run_folder
+from afmsim.runio import remove_stale_staging, run_folder, write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -97,3 +99,23 @@ def test_stale_cleanup_spares_live_runs_and_foreign_folders(tmp_path):
         assert remove_stale_staging(tmp_path) == []
         assert staging.is_dir() and foreign.is_dir()
     assert sorted(p.name for p in tmp_path.iterdir()) == [".x.partial-foreign", "live"]
+
+
+@pytest.mark.parametrize("umask, folder_mode, file_mode", [(0o022, 0o755, 0o644), (0o002, 0o775, 0o664),
+                                                           (0o077, 0o700, 0o600)])
+def test_run_folders_and_their_files_follow_the_umask(tmp_path, umask, folder_mode, file_mode):
+    previous = os.umask(umask)
+    try:
+        with run_folder(tmp_path / "o", config={}, seed=0, command="test") as staging:
+            write_json(staging / "scores.json", {"a": 1})
+            (staging / "plain.txt").write_text("written by open()")
+        write_json(tmp_path / "beside.json", [1, 2])
+    finally:
+        os.umask(previous)
+    def mode(path):
+        return stat.S_IMODE(path.stat().st_mode)
+    assert mode(tmp_path / "o") == folder_mode
+    assert {p.name: mode(p) for p in (tmp_path / "o").iterdir()} == {
+        "manifest.json": file_mode, "scores.json": file_mode, "plain.txt": file_mode}
+    assert mode(tmp_path / "beside.json") == file_mode
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["beside.json", "o"]     # no temporary left behind
