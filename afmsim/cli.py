@@ -7,12 +7,41 @@ and a one-line message naming the field; nothing is written then.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import Literal, Optional
 
 import typer
+from typer.core import TyperCommand
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  help="afmsim — a virtual atomic-force microscope with hysteretic piezo stages.")
+from afmsim.stage import HYSTERESIS_MODELS
+
+_Hysteresis = Literal[tuple(HYSTERESIS_MODELS)]  # every plant family, listed in --help
+
+
+class _Command(TyperCommand):
+    """A command whose on/off flags (``--quiet``, ``--help``) show no ``<bool>`` value in --help: they take none."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        for param in self.params:
+            if getattr(param, "is_flag", False):
+                param.metavar = ""
+
+    def get_help_option(self, ctx):
+        option = super().get_help_option(ctx)
+        if option is not None:
+            option.metavar = ""
+        return option
+
+
+class _App(typer.Typer):
+    """A Typer app whose commands are :class:`_Command` unless they ask for another class."""
+
+    def command(self, *args, cls=_Command, **kwargs):
+        return super().command(*args, cls=cls, **kwargs)
+
+
+app = _App(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+           help="afmsim — a virtual atomic-force microscope with hysteretic piezo stages.")
 
 
 @app.callback()
@@ -31,7 +60,7 @@ def identify(
     seed: int = typer.Option(0, min=0, help="Seed of the numpy Generator for all noise draws."),
     experiments: int = typer.Option(10, min=1, max=1000, help="Repeated evaluation experiments (fresh noise)."),
     n_operators: int = typer.Option(10, min=1, max=50, help="Backlash operators N per model."),
-    hysteresis: str = typer.Option("preisach", help="Plant hysteresis family (afmsim.stage.HYSTERESIS_MODELS): "
+    hysteresis: _Hysteresis = typer.Option("preisach", help="Plant hysteresis family (afmsim.stage.HYSTERESIS_MODELS): "
                                    "preisach (state-bound minor loops), duhem (direction-bound) or linear."),
 ):
     """Identify SPI, DIAPI, IIAPI and the better model on the default stage (paper §3.2, Tables 1–2).
@@ -40,10 +69,8 @@ def identify(
     """
     from afmsim.identification import identify as run_identify, table1, table2, write_identification
     from afmsim.runio import default_run_dir, run_folder
-    from afmsim.stage import HYSTERESIS_MODELS, default_stage
+    from afmsim.stage import default_stage
 
-    if hysteresis not in HYSTERESIS_MODELS:
-        _fail(f"--hysteresis must be one of {sorted(HYSTERESIS_MODELS)}, got {hysteresis!r}")
     out = out or default_run_dir("identify", hysteresis)
     config = {"seed": seed, "experiments": experiments, "n_operators": n_operators, "hysteresis": hysteresis}
     try:
@@ -79,18 +106,36 @@ def _preflight(loaded):
 
 
 @app.command()
-def validate(scenario: Path = typer.Argument(..., help="Scenario YAML file.")):
-    """Check a scenario without running it: fields, sample file, memory estimate.
+def validate(scenario: Path = typer.Argument(..., help="Scenario or sweep YAML file.")):
+    """Check a scenario or a sweep file without running it: fields, sample file, memory estimate
+    (for a sweep: every run it expands to).
 
-    Python: afmsim.scenario.load_scenario(path), then afmsim.resources.preflight(scenario).
+    Python: afmsim.scenario.load_scenario(path), then afmsim.resources.preflight(scenario); a sweep
+    file (one with a ``base``): afmsim.sweep.load_sweep(path), then preflight(run.scenario) per run.
     """
     from afmsim.resources import format_bytes
+    from afmsim.scenario import ScenarioError, read_yaml
+    from afmsim.sweep import SweepError, parse_sweep
 
-    loaded = _load(scenario)
-    needed, available = _preflight(loaded)
+    try:
+        data = read_yaml(scenario)
+    except ScenarioError as error:
+        _fail(str(error))
+    if not (isinstance(data, dict) and "base" in data):  # a scenario has no 'base'; a sweep file must
+        loaded = _load(scenario)
+        needed, available = _preflight(loaded)
+        what = f"{loaded.experiments} experiments, controllers: {', '.join(loaded.controllers)}; needs"
+    else:
+        try:
+            sweep = parse_sweep(data, scenario.parent)
+        except SweepError as error:
+            _fail(str(error))
+        checked = [_preflight(run.scenario) for run in sweep.runs()]
+        needed, available = max(n for n, _ in checked), checked[-1][1]
+        what = (f"sweep of {len(checked)} runs varying {', '.join(sweep.parameters)} on {sweep.base.name}; "
+                f"the largest run needs")
     free = f"{format_bytes(available)} available" if available is not None else "available memory unknown"
-    typer.echo(f"{scenario}: valid ({loaded.experiments} experiments, controllers: {', '.join(loaded.controllers)}; "
-               f"needs ≈ {format_bytes(needed)} of memory, {free})")
+    typer.echo(f"{scenario}: valid ({what} ≈ {format_bytes(needed)} of memory, {free})")
 
 
 @app.command()
@@ -210,10 +255,11 @@ def _progress(show: bool):
 
 
 def _print_summary(metrics: dict) -> None:
-    typer.echo(f"{'controller':>10} {'NSL2 mean':>12} {'σ':>10} {'shift x (µm)':>13}")
+    typer.echo(f"{'controller':>10} {'NSL2 mean':>12} {'σ':>10} {'shift x (µm)':>13} {'saturated':>10}")
     for name, scores in metrics["controllers"].items():
+        saturated = scores.get("saturated_fraction", {}).get("mean", 0.0)
         typer.echo(f"{name:>10} {scores['nsl2']['mean']:>12.1f} {scores['nsl2']['std']:>10.1f} "
-                   f"{scores['shift_x_m']['mean'] * 1e6:>13.3f}")
+                   f"{scores['shift_x_m']['mean'] * 1e6:>13.3f} {saturated:>10.2%}")
     if "e_D" in metrics:
         typer.echo(f"e_D (SPI → DIAPI, eq. 9): {metrics['e_D']:.1%}")
     for note in metrics.get("notes", []):
@@ -232,8 +278,9 @@ def diagnose(
                                                                      "switches on are already modelled; for images "
                                                                      "also the imaged sample, tip and Z loop."),
     out: Optional[Path] = typer.Option(None, help="Run folder to create (default: outputs/diagnose-<file>-<time>)."),
-    baseline: str = typer.Option("preisach", help="Baseline hysteresis: preisach (asymmetric) or symmetric."),
-    reference: str = typer.Option("auto", help="Images: what the tip traced — scenario (its sample and tip), "
+    baseline: Literal["preisach", "symmetric"] = typer.Option("preisach", help="Baseline hysteresis: preisach "
+                                                                                "(asymmetric) or symmetric."),
+    reference: Literal["auto", "scenario", "trace"] = typer.Option("auto", help="Images: what the tip traced — scenario (its sample and tip), "
                                                "trace (the measured trace) or auto (scenario when given)."),
     channel: Optional[str] = typer.Option(None, help="Images: controller channel of a run's images.npz/.gwy "
                                                      "(default: none), or the channel of an instrument file "
@@ -252,10 +299,6 @@ def diagnose(
     from afmsim.runio import default_run_dir, run_folder, write_json
 
     images = reader_for(measured) is not None
-    if baseline not in ("preisach", "symmetric"):
-        _fail(f"--baseline must be 'preisach' or 'symmetric', got {baseline!r}")
-    if reference not in ("auto", "scenario", "trace"):
-        _fail(f"--reference must be 'auto', 'scenario' or 'trace', got {reference!r}")
     loaded = _load(scenario) if scenario is not None else None
     out = out or default_run_dir("diagnose", measured.stem)
     if out.exists():
@@ -312,24 +355,31 @@ def inspect(
 def validate_diagnosis_command(
     cases: int = typer.Option(30, min=4, max=1000, help="Simulated cases (effects, magnitudes, pairs, nulls)."),
     seed: int = typer.Option(0, min=0, help="Seed of the case generator."),
-    kind: str = typer.Option("loops", help="What is diagnosed: loops (stage records) or images (trace/retrace scans)."),
-    out: Optional[Path] = typer.Option(None, help="Where to write the scores (default: benchmarks/results/"
-                                                  "diagnosis.json, or image_diagnosis.json for images)."),
+    kind: Literal["loops", "images"] = typer.Option("loops", help="What is diagnosed: loops (stage records) or "
+                                                                  "images (trace/retrace scans)."),
+    out: Optional[Path] = typer.Option(None, help="Run folder to create (default: outputs/validate-diagnosis-"
+                                                  "<kind>-<time>); the scores go into diagnosis.json, or "
+                                                  "image_diagnosis.json for images."),
 ):
     """Prove the diagnosis on simulated data whose effect was withheld from the model.
 
     Python: afmsim.diagnosis.validate_diagnosis(n_cases, seed) or validate_image_diagnosis(n_cases, seed).
+    The published figures (benchmarks/results/) come from benchmarks/bench_*diagnosis.py.
     """
     from afmsim.diagnosis import validate_diagnosis, validate_image_diagnosis
-    from afmsim.runio import write_json
+    from afmsim.runio import default_run_dir, run_folder, write_json
 
-    if kind not in ("loops", "images"):
-        _fail(f"--kind must be 'loops' or 'images', got {kind!r}")
-    out = out or Path("benchmarks/results") / ("diagnosis.json" if kind == "loops" else "image_diagnosis.json")
+    out = out or default_run_dir("validate-diagnosis", kind)
+    if out.exists():
+        _fail(f"output folder {out} already exists: choose another --out or remove it")
     run = validate_diagnosis if kind == "loops" else validate_image_diagnosis
-    scores = run(n_cases=cases, seed=seed)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_json(out, scores)
+    config = {"cases": cases, "seed": seed, "kind": kind}
+    try:
+        with run_folder(out, config=config, seed=seed, command="validate-diagnosis") as folder:
+            scores = run(n_cases=cases, seed=seed)
+            write_json(folder / ("diagnosis.json" if kind == "loops" else "image_diagnosis.json"), scores)
+    except (ValueError, OSError) as error:
+        _fail(str(error).splitlines()[0])
     summary = {k: v for k, v in scores.items() if not isinstance(v, (list, dict))}
     for key, value in summary.items():
         typer.echo(f"{key}: {value}")

@@ -143,14 +143,22 @@ class ScenarioResult:
         """The ``metrics.json`` content: mean/std/per-experiment of every score, and e_D."""
         controllers = {name: {metric: summarize(values) for metric, values in per.items()}
                        for name, per in self.scores.items()}
-        out = {"controllers": controllers, "units": {"nsl2": "1", "shift_x_m": "m", "shift_y_m": "m"}}
+        out = {"controllers": controllers,
+               "units": {"nsl2": "1", "shift_x_m": "m", "shift_y_m": "m", "saturated_fraction": "1"}}
         if "spi" in controllers and "diapi" in controllers:
             out["e_D"] = float(e_D(controllers["spi"]["nsl2"]["mean"], controllers["diapi"]["nsl2"]["mean"]))
         if "ideal" in controllers:
             floor = controllers["ideal"]["nsl2"]["mean"]
             out["nsl2_over_ideal"] = {n: c["nsl2"]["mean"] / floor if floor > 0 else None for n, c in controllers.items()}
-        if self.notes:
-            out["notes"] = list(self.notes)
+        notes = list(self.notes)
+        saturated = {n: c["saturated_fraction"]["mean"] for n, c in controllers.items()
+                     if c.get("saturated_fraction", {}).get("mean", 0) > 0}
+        if saturated:
+            notes.append("a drive sat at its amplifier limit (stage or Z travel exceeded; the image is flat there) in "
+                         + ", ".join(f"{n} {f:.2%}" for n, f in saturated.items())
+                         + " of the scan's samples (saturated_fraction, mean over experiments)")
+        if notes:
+            out["notes"] = notes
         return out
 
 
@@ -159,7 +167,8 @@ def _score(images: ScanImages, kind: str) -> tuple[dict, list[str]]:
     trace, retrace = images.trace, images.retrace
     notes = []
     shift_x, shift_y = image_shift(trace.z, retrace.z, trace.pixel_size)
-    scores = {"nsl2": nsl2_binarized(trace.z, retrace.z), "shift_x_m": shift_x, "shift_y_m": shift_y}
+    scores = {"nsl2": nsl2_binarized(trace.z, retrace.z), "shift_x_m": shift_x, "shift_y_m": shift_y,
+              "saturated_fraction": images.saturated_fraction}
     scores["scale_x"] = scale_x(trace.x, images.actual_x_trace, images.actual_x_retrace)
     if kind == "microlens":
         centre_shift = _central_lens_shift(trace, retrace)

@@ -21,6 +21,7 @@ Physics lives in ``sample``, ``tip``, ``stage``, ``z_stage``, ``z_feedback``, ``
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 import reprlib
@@ -34,9 +35,10 @@ from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fi
 from afmsim.compensation import CONTROLLER_NAMES
 from afmsim.hysteresis.fitting import MIN_SAMPLES_PER_WEIGHT
 from afmsim.samples.loaders import MAP_SUFFIXES, MESH_SUFFIXES
+from afmsim.stage import HYSTERESIS_MODELS, default_stage
 
 __all__ = ["Scenario", "ScenarioError", "load_scenario", "parse_scenario", "read_yaml", "check_sample_files",
-           "MAX_FILE_BYTES", "MAX_DEPTH"]
+           "suggest", "MAX_FILE_BYTES", "MAX_DEPTH"]
 
 MAX_FILE_BYTES = 1 << 20
 """Largest scenario file read, bytes (1 MiB; the bundled ones are under 1 KiB)."""
@@ -59,9 +61,10 @@ class ScenarioError(ValueError):
 
 
 class _FieldError(ValueError):
-    """A cross-field check's failure, tagged with the field (relative to its block) to blame."""
+    """A cross-field check's failure, tagged with the field (relative to its block) to blame, or
+    ``None`` when the message itself names every field involved."""
 
-    def __init__(self, field: str, message: str):
+    def __init__(self, field: str | None, message: str):
         super().__init__(message)
         self.field = field
 
@@ -79,6 +82,15 @@ def _ranged(kind, lo, hi, unit: str = ""):
             raise ValueError(f"must be in [{lo}, {hi}]{unit}, got {value}")
         return value
     return Annotated[kind, BeforeValidator(_not_bool), AfterValidator(check)]
+
+
+def _pair_of(unit: str):
+    def check(value):
+        # before pydantic's own tuple check, whose message ("a valid tuple") does not say the shape
+        if isinstance(value, (list, tuple)) and len(value) == 2:
+            return value
+        raise ValueError(f"expected [x, y] in {unit}, got {_SHORT.repr(value)}")
+    return check
 
 
 def Range(lo, hi, unit: str = ""):  # noqa: N802 - reads like a type in field declarations
@@ -185,7 +197,7 @@ class TipSpec(_Block):
 class StageSpec(_Block):
     """The XY plant's physics switches and parameters (SI conversions in afmsim.experiment)."""
 
-    hysteresis: Literal["preisach", "duhem"] = "preisach"
+    hysteresis: Literal[tuple(HYSTERESIS_MODELS)] = "preisach"  # every plant family of afmsim.stage
     saturation: StrictBool = True
     amplifier: StrictBool = True
     creep: StrictBool = True
@@ -215,8 +227,8 @@ class ZFeedbackSpec(_Block):
 class ScanSpec(_Block):
     """Raster scan: fast axis x (trace left→right, then retrace), slow axis y."""
 
-    size_um: tuple[Range(0.1, 100, "µm"), Range(0.1, 100, "µm")] = (30.0, 30.0)
-    offset_um: tuple[Range(0, 100, "µm"), Range(0, 100, "µm")] = (35.0, 35.0)
+    size_um: Annotated[tuple[Range(0.1, 100, "µm"), Range(0.1, 100, "µm")], BeforeValidator(_pair_of("µm"))] = (30.0, 30.0)
+    offset_um: Annotated[tuple[Range(0, 100, "µm"), Range(0, 100, "µm")], BeforeValidator(_pair_of("µm"))] = (35.0, 35.0)
     pixels: IntRange(16, 2048) = 256
     lines: IntRange(4, 2048) = 256
     line_rate_hz: Range(0.01, 100, "Hz") = 1.0
@@ -287,6 +299,21 @@ class Scenario(_Block):
         return self
 
     @model_validator(mode="after")
+    def _reachable(self):
+        # the field must lie inside the stage's rated travel on each axis (PiezoAxis.travel_m, 100 µm);
+        # the drive range above it (9.1 → 10 V) is the margin for the compensators' and the resonance's
+        # excursions, and the rest position (0 V) bounds the field from below (offset_um >= 0)
+        stage = default_stage(self.stage.hysteresis)
+        for k, (label, axis) in enumerate((("x", stage.x), ("y", stage.y))):
+            offset, size = self.scan.offset_um[k], self.scan.size_um[k]
+            travel_um = axis.params.travel_m / 1e-6
+            if offset + size > travel_um * (1 + 1e-12):
+                raise _FieldError(None, f"scan.offset_um[{k}] + scan.size_um[{k}] = {offset:g} + {size:g} = "
+                                        f"{offset + size:g} µm exceeds the stage travel {travel_um:g} µm ({label}): "
+                                        f"lower offset_um or size_um")
+        return self
+
+    @model_validator(mode="after")
     def _stable_z_loop(self):
         # mirrors afmsim.scan.zloop.track_surface: the loop runs ceil(loop rate / sample rate) steps per sample
         sample_rate_hz = 2 * self.scan.pixels * self.numerics.samples_per_pixel * self.scan.line_rate_hz
@@ -303,27 +330,68 @@ _SHORT = reprlib.Repr()  # a bounded repr: an offending value may be huge or dee
 _SHORT.maxlevel, _SHORT.maxdict, _SHORT.maxlist, _SHORT.maxstring, _SHORT.maxother = 2, 3, 3, 40, 40
 
 
+_SAMPLE_MODELS = {"microlens": MicroLensSample, "grating": GratingSample, "mesh": MeshSample,
+                  "heightmap": HeightMapSample}
+
+
+def _fields_at(loc) -> list[str]:
+    """The field names of the scenario block at ``loc`` (pydantic's location, union branch included)."""
+    model = Scenario
+    for part in loc:
+        if model is Scenario and part == "sample":
+            model = None  # the union: the next part is its branch
+            continue
+        if model is None:
+            model = _SAMPLE_MODELS.get(part)
+        else:
+            annotation = model.model_fields[part].annotation if part in model.model_fields else None
+            model = annotation if isinstance(annotation, type) and issubclass(annotation, BaseModel) else None
+        if model is None:
+            return []
+    return list(model.model_fields) if model is not None else []
+
+
+def suggest(word: str, known) -> str:
+    """``"; did you mean 'x'?"`` for the entry of ``known`` nearest ``word`` (difflib), else ``""``."""
+    close = difflib.get_close_matches(str(word), [str(k) for k in known], n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
 def _one_line(error: ValidationError) -> str:
     first = error.errors()[0]
-    loc = [str(p) for p in first["loc"]]
+    more = f" [+{len(error.errors()) - 1} more]" if len(error.errors()) > 1 else ""
+    cause = first.get("ctx", {}).get("error")
+    if isinstance(cause, _FieldError) and cause.field is None:
+        return f"{cause}{more}"
+    raw_loc = [str(p) for p in first["loc"]]
+    loc = list(raw_loc)
     if loc[:1] == ["sample"] and len(loc) > 1 and loc[1] in _TAGS:
         del loc[1]  # pydantic's union branch, not a key of the file
-    cause = first.get("ctx", {}).get("error")
     if isinstance(cause, _FieldError):
         loc.append(cause.field)
     message = first["msg"].removeprefix("Value error, ")
     value = first.get("input")
+    hint = ""
+    if first["type"] == "extra_forbidden":
+        known = _fields_at(raw_loc[:-1])
+        hint = suggest(raw_loc[-1], known)
+        message = "unknown field" + ("" if hint or not known else f" (known: {', '.join(known)})")
+        value = None
+    if first["type"] == "literal_error":
+        allowed = re.findall(r"'([^']*)'", first.get("ctx", {}).get("expected", ""))
+        message = f"must be one of {', '.join(allowed)}"
+        hint = suggest(value, allowed) if isinstance(value, str) else ""
     if first["type"] in ("model_type", "model_attributes_type", "dict_type"):
         message = "must be a mapping of fields (key: value)"
     if first["type"] in ("union_tag_not_found", "union_tag_invalid"):
         loc.append("kind")
         message = f"must be one of {', '.join(_TAGS)}"
         value = value.get("kind") if first["type"] == "union_tag_invalid" else None
+        hint = suggest(value, _TAGS) if isinstance(value, str) else ""
     shown = "" if first["type"] in ("value_error", "missing") or value is None else f" (got {_SHORT.repr(value)})"
     if first["type"] in ("float_parsing", "int_parsing"):
         shown += "; give a plain number, the unit is in the field name"
-    more = f" [+{len(error.errors()) - 1} more]" if len(error.errors()) > 1 else ""
-    return f"{'.'.join(loc) or 'scenario'}: {message}{shown}{more}"
+    return f"{'.'.join(loc) or 'scenario'}: {message}{shown}{hint}{more}"
 
 
 def parse_scenario(data: dict) -> Scenario:

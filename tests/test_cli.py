@@ -16,11 +16,51 @@ ROOT = Path(__file__).resolve().parents[1]
 runner = CliRunner()
 
 
-@pytest.mark.parametrize("name", ["quick", "microlens", "grating", "grating_full_range"])
+@pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "scenarios").glob("*.yaml")))
 def test_bundled_scenarios_validate(name):
     result = runner.invoke(app, ["validate", str(ROOT / "scenarios" / f"{name}.yaml")])
     assert result.exit_code == 0, result.output
     assert "valid" in result.output
+
+
+def test_validate_recognises_a_sweep_file_and_checks_every_run(tmp_path):
+    result = runner.invoke(app, ["validate", str(ROOT / "scenarios" / "sweep-scan-size.yaml")])
+    assert result.exit_code == 0, result.output
+    assert "valid (sweep of 7 runs varying scan.size_um on microlens-128" in result.output
+    sweep = yaml.safe_load((ROOT / "scenarios" / "sweep-scan-size.yaml").read_text())
+    sweep["grid"]["scan.size_um"].append([99.0, 99.0])       # from offset 2 µm: 101 µm, past the travel
+    path = tmp_path / "sweep.yaml"
+    path.write_text(yaml.safe_dump(sweep))
+    result = runner.invoke(app, ["validate", str(path)])
+    assert result.exit_code == 2
+    assert result.output.strip().splitlines() == [
+        "error: grid.scan.size_um: run 8/8 (scan.size_um=[99.0, 99.0]) makes an invalid scenario: scan.offset_um[0] "
+        "+ scan.size_um[0] = 2 + 99 = 101 µm exceeds the stage travel 100 µm (x): lower offset_um or size_um"]
+
+
+def _help(*command):
+    result = runner.invoke(app, [*command, "--help"], env={"COLUMNS": "250"})
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+def test_help_lists_the_choices_and_shows_no_value_for_flags():
+    from afmsim.stage import HYSTERESIS_MODELS
+    from typer.main import get_command
+
+    assert f"<{'|'.join(HYSTERESIS_MODELS)}>" in _help("identify") and "linear" in HYSTERESIS_MODELS
+    assert "<loops|images>" in _help("validate-diagnosis")
+    assert "<preisach|symmetric>" in _help("diagnose") and "<auto|scenario|trace>" in _help("diagnose")
+    for name in get_command(app).commands:
+        assert "<bool>" not in _help(name), name
+    (quiet,) = [line for line in _help("run").splitlines() if "--quiet" in line]
+    assert "No progress bar" in quiet and "<" not in quiet                  # a flag takes no value
+
+
+def test_a_choice_outside_the_list_exits_2():
+    for command in (["identify", "--hysteresis", "maxwell"], ["validate-diagnosis", "--kind", "pictures"]):
+        result = runner.invoke(app, command)
+        assert result.exit_code == 2 and command[-1] in result.output
 
 
 BAD = [
@@ -29,8 +69,16 @@ BAD = [
     ({"sample": {"kind": "microlens", "diameter_um": -3}}, "sample.diameter_um: must be in [0.5, 50] µm"),
     ({"z_feedback": {"ki_per_s": "fast"}}, "z_feedback.ki_per_s"),
     ({"controllers": ["magic"]}, "controllers.0"),
-    ({"colour": "blue"}, "colour: Extra inputs are not permitted"),
+    ({"colour": "blue"}, "colour: unknown field (known: name, seed, experiments, sample,"),
     ({"stage": {"hysteresis": "maxwell"}}, "stage.hysteresis"),
+    ({"scan": {"size_um": "30 um"}}, "scan.size_um: expected [x, y] in µm, got '30 um'"),
+    ({"scan": {"offset_um": [2]}}, "scan.offset_um: expected [x, y] in µm, got [2]"),
+    ({"scan": {"sise_um": [30, 30]}}, "scan.sise_um: unknown field; did you mean 'size_um'?"),
+    ({"scna": {"pixels": 32}}, "scna: unknown field; did you mean 'scan'?"),
+    ({"controllers": ["none", "diapy"]}, "controllers.1: must be one of none, spi, diapi, iiapi, capi, vendor, "
+                                         "ideal (got 'diapy'); did you mean 'diapi'?"),
+    ({"scan": {"offset_um": [95, 95], "size_um": [20, 20]}},
+     "scan.offset_um[0] + scan.size_um[0] = 95 + 20 = 115 µm exceeds the stage travel 100 µm (x)"),
 ]
 
 
@@ -156,3 +204,28 @@ def test_a_grating_scan_too_narrow_for_the_pitch_scores_still_runs(tmp_path):
     assert {"nsl2", "shift_x_m"} <= set(scores) and not any("pitch" in name for name in scores)
     assert any(note.startswith("trace_pitch_left_m") and "no complete period" in note for note in metrics["notes"])
     assert "note: trace_pitch_left_m" in result.output
+
+
+def test_validate_diagnosis_writes_a_run_folder_under_outputs(tmp_path, monkeypatch):
+    # where the scores go, not the validation itself (tests/test_diagnosis.py; 4 real cases take 10-30 s):
+    # the validation is replaced by a double that records its arguments
+    import afmsim.diagnosis
+
+    calls = []
+    monkeypatch.setattr(afmsim.diagnosis, "validate_diagnosis",
+                        lambda n_cases, seed: calls.append((n_cases, seed)) or {"n_cases": n_cases, "cases": []})
+    monkeypatch.chdir(tmp_path)
+    result = runner.invoke(app, ["validate-diagnosis", "--cases", "4", "--seed", "3"])
+    assert result.exit_code == 0, result.output
+    assert calls == [(4, 3)]
+    (folder,) = (tmp_path / "outputs").iterdir()
+    assert folder.name.startswith("validate-diagnosis-loops-") and f"wrote outputs/{folder.name}" in result.output
+    assert sorted(p.name for p in folder.iterdir()) == ["diagnosis.json", "manifest.json"]
+    assert json.loads((folder / "diagnosis.json").read_text()) == {"n_cases": 4, "cases": []}
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["command"] == "validate-diagnosis" and manifest["config"] == {"cases": 4, "seed": 3, "kind": "loops"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["outputs"]       # nothing in benchmarks/results
+    result = runner.invoke(app, ["validate-diagnosis", "--cases", "4", "--out", str(folder)])
+    assert result.exit_code == 2 and "already exists" in result.output and calls == [(4, 3)]
+    result = runner.invoke(app, ["validate-diagnosis", "--cases", "5", "--out", str(tmp_path / "mine")])
+    assert result.exit_code == 0 and (tmp_path / "mine" / "diagnosis.json").is_file()    # an explicit --out

@@ -107,6 +107,8 @@ def _mutations():
     """(id, scenario mapping, text naming the field) for every field of the full quick scenario."""
     for path, value in _leaves(FULL):
         where = _dotted(path)
+        if value is None:  # an optional file reference left unset (instrument): tested where it is read
+            continue
         if path == ("name",):
             bad = BAD_NAMES
         elif isinstance(value, bool):
@@ -173,10 +175,16 @@ def _combinations():
                                           **capi), "needs ≈"),
         ("memory-approach", _scenario(scan={"pixels": 2048, "line_rate_hz": 100},
                                       numerics={"samples_per_pixel": 64, "approach_s": 100}, **capi), "needs ≈"),
-        ("memory-sample-grid", _scenario(scan={"size_um": [100, 0.1], "lines": 2048},
+        ("field-beyond-travel-x", _scenario(scan={"offset_um": [95, 2], "size_um": [20, 20]}),
+         "scan.offset_um[0] + scan.size_um[0] = 95 + 20 = 115 µm exceeds the stage travel 100 µm (x)"),
+        ("field-beyond-travel-y", _scenario(scan={"offset_um": [2, 80.5], "size_um": [20, 20]}),
+         "scan.offset_um[1] + scan.size_um[1] = 80.5 + 20 = 100.5 µm exceeds the stage travel 100 µm (y)"),
+        ("size-with-unit", _scenario(scan={"size_um": "30 um"}), "scan.size_um: expected [x, y] in µm, got '30 um'"),
+        ("misspelt-field", _scenario(scan={"line_rate": 2}), "scan.line_rate: unknown field; did you mean 'line_rate_hz'?"),
+        ("memory-sample-grid", _scenario(scan={"size_um": [100, 0.1], "offset_um": [0, 0], "lines": 2048},
                                          numerics={"sample_oversampling": 8}), "needs ≈"),
         ("memory-lens-pitch", _scenario(sample={"kind": "microlens", "diameter_um": 0.5, "sag_um": 0.1,
-                                                "pitch_um": 0.5}, scan={"size_um": [100, 100]}),
+                                                "pitch_um": 0.5}, scan={"size_um": [100, 100], "offset_um": [0, 0]}),
          "sample.pitch_um: needs ≈"),
     ]
 

@@ -44,7 +44,12 @@ CASES = [
     ("file-over-1-MiB", "# " + "x" * (1 << 20) + "\n", "larger than 1 MiB"),
     # top-level keys
     ("missing-base", {"name": "x", "grid": {"scan.pixels": [32]}}, "base"),
-    ("unknown-key", {**_grid({"scan.pixels": [32]}), "colour": "blue"}, "colour: Extra inputs are not permitted"),
+    ("unknown-key", {**_grid({"scan.pixels": [32]}), "colour": "blue"}, "colour: unknown field (known: name, seed, base, grid, random)"),
+    ("misspelt-key", {**_grid({"scan.pixels": [32]}), "seeds": 3}, "seeds: unknown field; did you mean 'seed'?"),
+    ("misspelt-path", _grid({"scan.pixel": [32]}), "scan has no field 'pixel'; did you mean 'pixels'?"),
+    ("field-beyond-travel", _grid({"scan.offset_um": [[2.0, 2.0], [95.0, 2.0]]}),
+     "grid.scan.offset_um: run 2/2 (scan.offset_um=[95.0, 2.0]) makes an invalid scenario: "
+     "scan.offset_um[0] + scan.size_um[0] = 95 + 10 = 105 µm exceeds the stage travel 100 µm (x)"),
     ("name-not-string", {**_grid({"scan.pixels": [32]}), "name": 5}, "name"),
     ("name-with-slash", {**_grid({"scan.pixels": [32]}), "name": "../evil"}, "name: must be 1–64"),
     ("name-empty", {**_grid({"scan.pixels": [32]}), "name": ""}, "name"),

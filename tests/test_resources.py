@@ -84,7 +84,7 @@ def test_microlens_estimate_grows_with_the_pixel_count():
 
 def test_estimate_names_the_sample_pitch_when_the_lens_mesh_explodes():
     scenario = _scenario(sample={"kind": "microlens", "diameter_um": 0.5, "sag_um": 0.1, "pitch_um": 0.5},
-                         scan={"size_um": [100, 100]})
+                         scan={"size_um": [100, 100], "offset_um": [0, 0]})
     assert memory_breakdown(scenario).dominant().fields == "sample.pitch_um"
     with pytest.raises(ScenarioError, match=r"^sample\.pitch_um: needs ≈ .* raise sample\.pitch_um"):
         check_memory(scenario, available=16 * 2**30)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -21,13 +21,23 @@ class ScanImages:
 
     ``trace`` and ``retrace`` hold recorded heights (m) at the *intended* pixel positions, both
     left → right. ``actual_x_trace``/``actual_x_retrace`` give the mean actual x (m) of the tip
-    over each pixel, the ground truth behind the image distortion.
+    over each pixel, the ground truth behind the image distortion. ``saturated`` counts the frame's
+    time samples at which a drive sat at its amplifier limit: ``"x"``, ``"y"`` (XY drive clipped,
+    :meth:`afmsim.stage.PiezoAxis.clipped`), ``"z"`` (Z loop pinned, :func:`track_surface`) and
+    ``"any"`` (at least one of them); ``samples`` is the frame's number of time samples.
     """
 
     trace: HeightMap
     retrace: HeightMap
     actual_x_trace: np.ndarray
     actual_x_retrace: np.ndarray
+    saturated: dict = field(default_factory=lambda: {"x": 0, "y": 0, "z": 0, "any": 0})
+    samples: int = 0
+
+    @property
+    def saturated_fraction(self) -> float:
+        """Fraction of the frame's time samples with a drive at its limit (0 when none was counted)."""
+        return self.saturated["any"] / self.samples if self.samples else 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -74,11 +84,16 @@ def scan_frame(surface: HeightMap, trajectory: RasterTrajectory, stage, controll
     vx = controller_x.predict(trajectory.x)
     vy = controller_y.predict(trajectory.y)
     x_actual, y_actual = stage.move(trajectory.t, vx, vy)
+    z_limit = np.empty(trajectory.t.size, dtype=bool)
     heights = track_surface(surface_under_tip(surface, x_actual, y_actual), trajectory.geometry.sample_rate_hz,
-                            z_stage, z_feedback, rng)
+                            z_stage, z_feedback, rng, at_limit=z_limit)
     trace, retrace = trajectory.to_images(heights)
     ax_trace, ax_retrace = trajectory.to_images(x_actual)
     g = trajectory.geometry
     origin = (g.pixel_centres_x[0], g.line_centres_y[0])
+    frame = slice(trajectory.frame_start, None)
+    limits = dict(zip("xyz", (*stage.clipped(vx[frame], vy[frame]), z_limit[frame])))
+    saturated = {axis: int(np.count_nonzero(mask)) for axis, mask in limits.items()}
+    saturated["any"] = int(np.count_nonzero(limits["x"] | limits["y"] | limits["z"]))
     return ScanImages(HeightMap(trace, g.pixel_size, origin), HeightMap(retrace, g.pixel_size, origin),
-                      ax_trace, ax_retrace)
+                      ax_trace, ax_retrace, saturated, int(z_limit[frame].size))

@@ -146,7 +146,7 @@ def _track(surface, substeps, dt, ki, kp, setpoint, noise, s_nom, s_true, u_max,
 
 
 def track_surface(surface_m: np.ndarray, sample_rate_hz: float, stage: ZStage, feedback: ZFeedback,
-                  rng: np.random.Generator) -> np.ndarray:
+                  rng: np.random.Generator, *, at_limit: np.ndarray | None = None) -> np.ndarray:
     """Run the Z loop along a tip path; return the recorded height per sample, metres.
 
     ``surface_m[k]`` is the dilated surface height under the tip's actual XY position at sample
@@ -155,6 +155,10 @@ def track_surface(surface_m: np.ndarray, sample_rate_hz: float, stage: ZStage, f
     surface interpolated linearly between neighbouring samples, and the recorded height is the
     interval's mean Z drive × nominal sensitivity, offset so the first sample reads its surface
     height.
+
+    ``at_limit``, if given (a bool array of the surface's length), is set True at the samples over
+    which the Z drive sat at an amplifier limit (0 V or ``max_voltage_V``) for the whole interval:
+    there the tip no longer follows the surface (Z travel exceeded).
     """
     surface = np.ascontiguousarray(surface_m, dtype=np.float64)
     substeps = max(1, int(np.ceil(feedback.loop_rate_hz / sample_rate_hz)))
@@ -170,6 +174,9 @@ def track_surface(surface_m: np.ndarray, sample_rate_hz: float, stage: ZStage, f
     a, beta, gamma = (stage.bw_alpha, stage.bw_beta_per_V, stage.bw_gamma_per_V) if stage.hysteresis else (0.0, 0.0, 0.0)
     _track(surface, substeps, dt, feedback.ki_per_s, feedback.kp, feedback.setpoint_m, noise,
            stage.sensitivity_m_per_V, true_sensitivity, stage.max_voltage_V, a, beta, gamma, out)
+    if at_limit is not None:  # out is the mean drive × S_nom, in [0, u_max·S_nom]; u ≥ 0 always
+        top = stage.max_voltage_V * stage.sensitivity_m_per_V
+        np.logical_or(out <= 0.0, out >= top * (1 - 1e-9), out=at_limit)
     start = out[0]
     out -= start
     out += surface[0]

@@ -205,6 +205,14 @@ class AxisParams:
         """Nominal (secant, full-range) sensitivity, m/V."""
         return self.hysteresis.sensitivity_m_per_V
 
+    @property
+    def travel_m(self) -> float:
+        """Rated travel, m: the peak of the calibration ramp, sensitivity × calibration amplitude
+        (100 µm at 9.1 V, paper §3.1/3.2). The drive range above the calibration amplitude (9.1 to
+        10 V, another 10–14 µm from rest) is the margin left for the compensators' and the
+        resonance's excursions beyond an intended position inside the travel."""
+        return self.hysteresis.sensitivity_m_per_V * self.hysteresis.calibration_amplitude_V
+
 
 _EFFECTS = ("saturation", "amplifier", "hysteresis", "creep", "drift", "resonance", "noise")
 
@@ -228,6 +236,16 @@ class PiezoAxis:
         return self.with_effects(hysteresis=False)
 
     # -- the chain --------------------------------------------------------------------------
+    def clipped(self, v) -> np.ndarray:
+        """Boolean mask of the drive samples ``v`` (V) that the saturation clips to
+        [``v_min_V``, ``v_max_V``]: where the stage sits at its limit instead of following the
+        command. All False when saturation is switched off (nothing is clipped then)."""
+        v = np.asarray(v, dtype=np.float64)
+        p = self.params
+        if not p.saturation_enabled:
+            return np.zeros(v.shape, dtype=bool)
+        return (v < p.v_min_V) | (v > p.v_max_V)
+
     def drive(self, t, v) -> np.ndarray:
         """Voltage seen by the stack (V): saturation then amplifier low-pass."""
         p = self.params

@@ -45,6 +45,11 @@ class XYStage:
         my += self.y.drift(t)
         return mx, my
 
+    def clipped(self, vx, vy) -> tuple[np.ndarray, np.ndarray]:
+        """Masks of the X and Y drive samples (V) clipped at the amplifier limits
+        (:meth:`PiezoAxis.clipped`)."""
+        return self.x.clipped(vx), self.y.clipped(vy)
+
     def measure(self, x, y, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Sensor readings of both axes (noise drawn from ``rng``, X first)."""
         return self.x.measure(x, rng), self.y.measure(y, rng)

@@ -34,7 +34,7 @@ import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from afmsim.scenario import (IntRange, Scenario, ScenarioError, check_sample_files, load_scenario, parse_scenario,
-                             read_yaml)
+                             read_yaml, suggest)
 
 __all__ = ["MAX_RUNS", "Run", "Sweep", "SweepError", "load_sweep", "parse_sweep"]
 
@@ -198,8 +198,21 @@ def _one_line(error: ValidationError) -> str:
     message = first["msg"].removeprefix("Value error, ")
     value = first.get("input")
     shown = "" if first["type"] in ("value_error", "missing") or isinstance(value, (dict, list)) else f" (got {_short(value)})"
+    if first["type"] == "extra_forbidden":
+        known = _known_fields(first["loc"][:-1])
+        hint = suggest(first["loc"][-1], known)
+        message, shown = "unknown field" + (hint or (f" (known: {', '.join(known)})" if known else "")), ""
     more = f" [+{len(error.errors()) - 1} more]" if len(error.errors()) > 1 else ""
     return f"{where or 'sweep'}: {message}{shown}{more}"
+
+
+def _known_fields(loc) -> list[str]:
+    """Field names of the sweep-file block at ``loc``: the file itself, ``random`` or a distribution."""
+    if not loc:
+        return list(SweepFile.model_fields)
+    if loc[0] == "random":
+        return list(RandomSpec.model_fields if len(loc) == 1 else Distribution.model_fields)
+    return []
 
 
 def _walk(tree, path: str, field: str):
@@ -210,7 +223,9 @@ def _walk(tree, path: str, field: str):
         here = ".".join(parts[:depth]) or "the scenario"
         if isinstance(node, dict):
             if part not in node:
-                raise SweepError(f"{field}: {here} has no field {part!r} (fields: {', '.join(node)})")
+                hint = suggest(part, node)
+                raise SweepError(f"{field}: {here} has no field {part!r}"
+                                 + (hint or f" (fields: {', '.join(node)})"))
             node = node[part]
         elif isinstance(node, list):
             if not (part.isdigit() and int(part) < len(node)):
@@ -279,7 +294,10 @@ def _expand(spec: SweepFile, base: Scenario) -> tuple[Run, ...]:
             check_sample_files(scenario)
         except ScenarioError as error:
             loc = str(error).split(":", 1)[0]
-            culprit = next((p for p in values if loc == p or loc.startswith(p + ".")), next(iter(values)))
+            culprit = next((p for p in values if loc == p or loc.startswith(p + ".")), None)
+            # a cross-field message names its fields itself (scan.offset_um[0] + scan.size_um[0] ...)
+            culprit = culprit or next((p for p in values if re.sub(r"\.(\d+)$", r"[\1]", p) in str(error)
+                                       or p in str(error)), next(iter(values)))
             raise SweepError(f"{sections[culprit]}: run {number}/{total} ({culprit}={_short(values[culprit])}) makes an "
                              f"invalid scenario: {error}") from None
         checked = scenario.model_dump(mode="json")
