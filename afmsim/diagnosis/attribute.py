@@ -32,6 +32,7 @@ from afmsim.reproducible import single_blas_thread
 
 from .engine import Front, Rules, attribute, conclude, effect_lines, noise_floor, ratio_text, rms, verdict_text
 from .localise import localise
+from .minor_loop import minor_loop_law
 from .loops import LoopRecord, load_record
 from .model import Design, FittedModel, ModelSpec, fit_model
 
@@ -119,6 +120,7 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
         "implausible": outcome["implausible"],
         "final": outcome["final"],
         "unexplained": outcome["unexplained"],
+        "minor_loop_law": minor_loop_law(rec.t, rec.v, rec.x, train, sigma),
     }
     summary = loop_summary(report)
     if figure_path is not None:
