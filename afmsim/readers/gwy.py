@@ -6,10 +6,14 @@ Every ``/N/data`` data field becomes a channel; its title carries name and direc
 Rows as stored: a ``.gwy`` keeps no slow-scan direction, so row 0 is taken as the first line
 scanned (true for files ``afmsim`` writes; a file converted by Gwyddion from another format may
 have been flipped by the import). No line time: Gwyddion does not keep one.
+
+The top-level object's declared size is checked against the file's length before ``gwyfile``
+parses it: ``gwyfile`` 0.3 loops forever on a cut file.
 """
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -30,9 +34,15 @@ def read_gwy_file(path: Path) -> AfmFile:
     """Every data field of a Gwyddion ``.gwy`` file as a channel."""
     from gwyfile.objects import GwyDataField, GwyObject
 
-    with open(path, "rb") as handle:
-        if handle.read(4) != _MAGIC:
-            raise ReaderError(f"{path.name}: not a Gwyddion .gwy file (no GWYP magic)")
+    raw = path.read_bytes()
+    if raw[:4] != _MAGIC:
+        raise ReaderError(f"{path.name}: not a Gwyddion .gwy file (no GWYP magic)")
+    name_end = raw.find(b"\0", 4)
+    if name_end < 0 or len(raw) < name_end + 5:
+        raise ReaderError(f"{path.name}: truncated .gwy file (no complete top-level object header)")
+    promised = name_end + 5 + struct.unpack("<I", raw[name_end + 1:name_end + 5])[0]
+    if len(raw) < promised:
+        raise ReaderError(f"{path.name}: truncated .gwy file ({len(raw)} bytes, its top-level object needs {promised})")
     try:
         container = GwyObject.fromfile(str(path))
     except Exception as error:  # gwyfile raises several types on a cut or corrupt file

@@ -14,6 +14,7 @@ and amplitude, ° for phase, A for current, V otherwise), which is what Asylum s
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +50,7 @@ def read_ibw(path: Path) -> AfmFile:
     """Every image layer of an Igor binary wave (Asylum Research ``.ibw``)."""
     from igor2 import binarywave
 
+    logging.getLogger("igor2").addHandler(logging.NullHandler())  # its errors on a cut file go to ReaderError only
     try:
         wave = binarywave.load(str(path))["wave"]
     except Exception as error:  # igor2 raises struct/value/key errors on foreign or cut files
@@ -70,7 +72,9 @@ def read_ibw(path: Path) -> AfmFile:
     down = note.get("ScanDown", "0").strip() in ("1", "Down", "down")
     channels = []
     for k in range(layers):
-        title = labels[k] if k < len(labels) and labels[k] else str(wave["wave_header"]["bname"].decode("latin-1"))
+        bname = header["bname"]
+        title = labels[k] if k < len(labels) and labels[k] else \
+            (bname.decode("latin-1") if isinstance(bname, bytes) else str(bname))
         name, direction = split_direction(title)
         quantity = quantity_of(name, "")
         unit, factor = to_si(data_unit if layers == 1 and data_unit else _KIND_UNIT[quantity])

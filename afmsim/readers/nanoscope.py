@@ -9,7 +9,11 @@ past the end of a cut one) and adds from the header what ``pySPM`` leaves out:
 * line time from ``Scan Rate`` of the ``\\*Ciao scan list`` (Hz, lines per second where a line is
   trace + retrace, so one direction lasts ``1 / (2 · Scan Rate)``);
 * ``Frame direction``: Nanoscope stores the image's bottom line first (Gwyddion and AFMReader flip
-  it for display), so rows are reversed only for a ``Down`` frame.
+  it for display), so rows are reversed only for a ``Down`` frame;
+* the image shape: ``pySPM`` 0.6 reshapes a layer to (Samps/line, Number of lines), wrong for a
+  non-square image, so the scaled values are re-shaped to (Number of lines, Samps/line) in their
+  stored order; the size is ``Scan Size`` along x and ``Scan Size · lines / samples`` along y
+  (square pixels, as ``pySPM`` and AFMReader take it).
 
 Text-mode (``?*File list``) files are refused (``pySPM`` reads binary ones only).
 """
@@ -80,9 +84,10 @@ def read_nanoscope(path: Path) -> AfmFile:
         except Exception as error:  # pySPM raises bare Exception / re errors for what it cannot scale
             raise ReaderError(f"{path.name}: cannot scale layer {i} '{name}' ({type(error).__name__})") from None
         unit, factor = to_si(image.zscale)
-        xy_unit = to_si(image.size["real"]["unit"])[1]
-        data = np.asarray(image.pixels, dtype=np.float64) * factor
-        size = (image.size["real"]["x"] * xy_unit, image.size["real"]["y"] * xy_unit)
+        lines, samples = int(layer[b"Number of lines"][0]), int(layer[b"Samps/line"][0])
+        data = np.asarray(image.pixels, dtype=np.float64).reshape(lines, samples) * factor
+        width = image.size["real"]["x"] * to_si(image.size["real"]["unit"])[1]
+        size = (width, width * lines / samples)
         channels.append(Channel(name, "retrace" if retrace else "trace", quantity_of(name, unit), unit,
                                 data[::-1].copy() if down else data, size, line_time))
     if not channels:

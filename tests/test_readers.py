@@ -1,0 +1,338 @@
+"""Real instrument files in: every format's channels, directions, units, sizes and line times;
+the height pair; ``afmsim inspect``; ``diagnose --measured`` on vendor files; bad files → one line, exit 2.
+
+Fixture files are made in ``tmp_path``: ``.gwy`` with ``gwyfile``, ``.ibw`` with ``igorwriter``
+(both maintained writers); no maintained package writes Nanoscope files, so ``_write_nanoscope``
+builds a minimal binary one from the format's header layout. The real Nanosurf files come from
+``../shared/real-data/afm`` (tests skip without it).
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from afmsim.cli import app
+from afmsim.diagnosis import load_images
+from afmsim.readers import ReaderError, pick_height_pair, read_afm_file
+from afmsim.readers.channels import quantity_of, split_direction, to_si
+
+REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real-data" / "afm"
+needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="../shared/real-data/afm not present")
+runner = CliRunner()
+
+# From ../shared/real-data/afm/README.md: height channel, scan size (m), time/line (s; the header's
+# ScanTime where newer software writes it), channels in the file (both directions).
+README = {
+    "circles.nid": ("Topography", 50e-6, 2.0, 4),
+    "squares_holes.nid": ("Topography", 50e-6, 2.0, 4),
+    "grid1.nid": ("Z-Axis", 3e-6, 0.7803, 6),
+    "SBS-PMMA.nid": ("Z-Axis", 25e-6, 0.5, 8),
+    "image.nid": ("Z-Axis", 7.40729e-6, 0.80325, 6),
+    "test.nid": ("Z-Axis", 50e-6, 0.8, 8),
+}
+
+
+# --- fixture writers --------------------------------------------------------------------------
+
+def _write_gwy(path, fields):
+    """``fields``: (title, z, z_unit, xy_real, xy_unit) each, written with gwyfile."""
+    from gwyfile.objects import GwyContainer, GwyDataField, GwySIUnit
+
+    container = GwyContainer()
+    for i, (title, z, z_unit, real, xy_unit) in enumerate(fields):
+        container[f"/{i}/data"] = GwyDataField(np.ascontiguousarray(z, dtype=np.float64), xreal=real, yreal=real,
+                                               si_unit_xy=GwySIUnit(unitstr=xy_unit),
+                                               si_unit_z=GwySIUnit(unitstr=z_unit))
+        container[f"/{i}/data/title"] = title
+    container.tofile(str(path))
+    return path
+
+
+def _write_ibw(path, layers, note):
+    """``layers``: {label: (lines, points) image}; Asylum's layout (points, lines, channels), igorwriter."""
+    import igorwriter
+
+    stack = np.stack([img.T for img in layers.values()], axis=2).astype(np.float32)
+    wave = igorwriter.IgorWave(stack, name="scan0001")
+    wave.set_dimscale("x", 0, 1e-8, "m")
+    wave.set_dimscale("y", 0, 1e-8, "m")
+    for k, label in enumerate(layers):
+        wave.set_dimlabel(2, k, label)
+    wave.set_note("\r".join(f"{k}: {v}" for k, v in note.items()) + "\r")
+    wave.save(str(path))
+    return path
+
+
+def _write_nanoscope(path, layers, *, size_um=5.0, rate_hz=1.0, frame="Up", zsens_nm_per_v=20.0, zscale_v=440.0):
+    """A minimal binary Nanoscope (v5) file: ``layers`` is [(name, "Trace"/"Retrace", int16 (lines, points))]."""
+    lines, points = layers[0][2].shape
+    offset = 8192
+    head = ["\\*File list", "\\Version: 0x05120130", "\\Date: 10:00:00 AM Mon Jan 01 2024",
+            "\\*Scanner list", f"\\@Sens. Zsens: V {zsens_nm_per_v} nm/V",
+            "\\*Ciao scan list", f"\\Scan Size: {size_um} {size_um} ~m", f"\\Samps/line: {points}",
+            f"\\Lines: {lines}", f"\\Scan Rate: {rate_hz}", f"\\Frame direction: {frame}"]
+    for k, (name, direction, _) in enumerate(layers):
+        lsb = zscale_v / 65536
+        head += ["\\*Ciao image list", f"\\Data offset: {offset + k * lines * points * 2}",
+                 f"\\Data length: {lines * points * 2}", "\\Bytes/pixel: 2", f"\\Samps/line: {points}",
+                 f"\\Number of lines: {lines}", f"\\Scan Size: {size_um} {size_um} ~m", "\\Aspect Ratio: 1:1",
+                 f"\\Line Direction: {direction}", f'\\@2:Image Data: S [{name}] "{name}"',
+                 f"\\@2:Z scale: V [Sens. Zsens] ({lsb:.10f} V/LSB) {zscale_v:.4f} V",
+                 f"\\@2:Z offset: V [Sens. Zsens] ({lsb:.10f} V/LSB) 0.0000 V"]
+    header = ("\r\n".join(head + ["\\*File list end"]) + "\r\n").encode("latin-1")
+    data = b"".join(np.asarray(img, dtype="<i2").tobytes() for _, _, img in layers)
+    path.write_bytes(header + b"\x1a" * (offset - len(header)) + data)
+    return path
+
+
+def _grating(lines=24, points=32, shift_px=1.5, seed=0):
+    """A ridge grating traced left → right and right → left: the retrace lags by ``shift_px`` pixels."""
+    rng = np.random.default_rng(seed)
+    x = np.arange(points)
+    profile = lambda s: 50e-9 * (np.sin(2 * np.pi * (x - s) / 8.0) > 0)  # noqa: E731
+    trace = np.tile(profile(0.0), (lines, 1)) + rng.normal(0, 0.5e-9, (lines, points))
+    retrace = np.tile(profile(shift_px), (lines, 1)) + rng.normal(0, 0.5e-9, (lines, points))
+    return trace, retrace
+
+
+# --- vendor-neutral rules ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("title, expected", [
+    ("Z-Axis forward", ("Z-Axis", "forward")), ("HeightRetrace", ("Height", "retrace")),
+    ("ZSensorTrace", ("ZSensor", "trace")), ("Topography [Bwd]", ("Topography", "backward")),
+    ("trace none", ("none", "trace")), ("Phase", ("Phase", "")), ("Amplitude (Fwd)", ("Amplitude", "forward")),
+])
+def test_direction_is_split_from_the_title(title, expected):
+    assert split_direction(title) == expected
+
+
+@pytest.mark.parametrize("name, unit, quantity", [
+    ("Topography", "m", "height"), ("Z-Axis Sensor", "m", "height"), ("Deflection", "m", "deflection"),
+    ("Friction force", "V", "lateral"), ("Amplitude", "V", "amplitude"), ("Phase", "deg", "phase"),
+    ("Tip current", "A", "current"), ("none", "m", "height"), ("User input 1", "V", "other"),
+])
+def test_quantity_from_name_and_unit(name, unit, quantity):
+    assert quantity_of(name, unit) == quantity
+
+
+def test_units_to_si():
+    assert to_si("nm") == ("m", 1e-9) and to_si("~m") == ("m", 1e-6) and to_si("µm") == ("m", 1e-6)
+    assert to_si("°") == ("deg", 1.0) and to_si("mV") == ("V", 1e-3) and to_si("pA") == ("A", 1e-12)
+    assert to_si("furlong") == ("furlong", 1.0)
+
+
+# --- the real Nanosurf files ---------------------------------------------------------------------
+
+@needs_real
+@pytest.mark.parametrize("name", sorted(README))
+def test_real_nid_channels_sizes_units_and_line_time(name):
+    height, size, line_time, count = README[name]
+    afm = read_afm_file(REAL / name)
+    assert afm.format == "nid" and len(afm.channels) == count
+    assert sorted({c.direction for c in afm.channels}) == ["backward", "forward"]
+    for c in afm.channels:
+        assert c.shape == (256, 256) and c.size_m == pytest.approx((size, size))
+        assert c.line_time_s == pytest.approx(line_time)
+        assert c.data.dtype == np.float64 and np.isfinite(c.data).all()
+    trace, retrace, picked = pick_height_pair(afm)
+    assert (trace.name, trace.direction, retrace.direction) == (height, "forward", "backward")
+    assert trace.unit == "m" and f"'{height}'" in picked and "\n" not in picked
+    span = np.ptp(trace.data)  # heights in metres: tens of nm to a few µm on these samples
+    assert 5e-8 < span < 2e-5, span
+    phases = [c for c in afm.channels if c.quantity == "phase"]
+    assert all(c.unit == "deg" for c in phases)
+
+
+@needs_real
+def test_real_nid_down_frame_is_reversed_to_scan_order_and_both_directions_run_left_to_right():
+    from NSFopen.read import nid_read
+
+    afm = read_afm_file(REAL / "SBS-PMMA.nid")  # Scan direction=Down, CurLine=0
+    stored = nid_read(str(REAL / "SBS-PMMA.nid"), dataframe=False).data["Image"]["Forward"]["Z-Axis"]
+    trace, retrace, _ = pick_height_pair(afm)
+    assert afm.metadata["slow_scan"] == "down"
+    np.testing.assert_allclose(trace.data, stored[::-1])
+    up = read_afm_file(REAL / "image.nid")
+    assert up.metadata["slow_scan"] == "up"
+    t, r, _ = pick_height_pair(up)
+    level = lambda a: a - np.median(a, axis=1, keepdims=True)  # noqa: E731
+    as_stored = np.corrcoef(level(t.data).ravel(), level(r.data).ravel())[0, 1]
+    mirrored = np.corrcoef(level(t.data).ravel(), level(r.data[:, ::-1]).ravel())[0, 1]
+    assert as_stored > 0.9 > mirrored
+
+
+@needs_real
+def test_real_nid_channel_override_and_refusals():
+    afm = read_afm_file(REAL / "SBS-PMMA.nid")
+    trace, retrace, picked = pick_height_pair(afm, "z-axis sensor")
+    assert trace.name == "Z-Axis Sensor" and "--channel" in picked
+    with pytest.raises(ReaderError, match="not a height"):
+        pick_height_pair(afm, "Friction force")
+    with pytest.raises(ReaderError, match="no channel 'Height'"):
+        pick_height_pair(afm, "Height")
+
+
+@needs_real
+def test_real_nid_loads_as_image_record():
+    record = load_images(REAL / "circles.nid")
+    assert record.shape == (256, 256) and record.scan_size_m == pytest.approx((50e-6, 50e-6))
+    assert record.line_rate_hz == pytest.approx(0.25)  # 1 / (2 · 2 s)
+    assert "Topography forward/backward" in record.source and record.scan_offset_m is None
+
+
+@needs_real
+@pytest.mark.parametrize("cut", [0.5, "10 bytes"])
+def test_truncated_real_nid_is_one_line(tmp_path, cut):
+    raw = (REAL / "circles.nid").read_bytes()
+    short = tmp_path / "circles.nid"
+    short.write_bytes(raw[:len(raw) // 2] if cut == 0.5 else raw[:-10])
+    with pytest.raises(ReaderError, match="truncated") as info:
+        read_afm_file(short)
+    assert "\n" not in str(info.value)
+
+
+@needs_real
+def test_inspect_json_schema_on_a_real_file():
+    result = runner.invoke(app, ["inspect", str(REAL / "test.nid"), "--json"])
+    assert result.exit_code == 0, result.output
+    listing = json.loads(result.output)
+    assert listing["format"] == "nid" and len(listing["channels"]) == 8
+    for channel in listing["channels"]:
+        assert {"name", "direction", "unit", "shape", "size_m", "line_time_s"} <= set(channel)
+        assert channel["shape"] == [256, 256] and channel["size_m"] == pytest.approx([50e-6, 50e-6])
+    assert {(c["name"], c["direction"]) for c in listing["channels"]} >= {("Z-Axis Sensor", "backward"),
+                                                                         ("Phase", "forward")}
+    text = runner.invoke(app, ["inspect", str(REAL / "test.nid")])
+    assert text.exit_code == 0 and "Z-Axis Sensor" in text.output and "picked 'Z-Axis'" in text.output
+
+
+# --- formats made with maintained writers (or from the spec) ----------------------------------------
+
+def test_gwy_vendor_titles_units_and_directions(tmp_path):
+    z = np.arange(20 * 24, dtype=float).reshape(20, 24)
+    path = _write_gwy(tmp_path / "scan.gwy", [("Z-Axis forward", z, "nm", 2.0, "µm"), ("Z-Axis backward", z + 1, "nm", 2.0, "µm"),
+                                              ("Phase forward", z, "deg", 2.0, "µm")])
+    afm = read_afm_file(path)
+    assert afm.format == "gwy" and [c.direction for c in afm.channels] == ["forward", "backward", "forward"]
+    trace, retrace, _ = pick_height_pair(afm)
+    assert trace.name == "Z-Axis" and trace.unit == "m" and trace.size_m == pytest.approx((2e-6, 2e-6))
+    np.testing.assert_allclose(retrace.data, (z + 1) * 1e-9)
+    assert afm.channels[2].quantity == "phase" and afm.channels[2].line_time_s is None
+
+
+def test_gwy_one_direction_or_no_height_is_refused(tmp_path):
+    z = np.ones((16, 16)) * np.arange(16)
+    one = read_afm_file(_write_gwy(tmp_path / "one.gwy", [("Height Trace", z, "m", 1e-6, "m")]))
+    with pytest.raises(ReaderError, match="trace scan only"):
+        pick_height_pair(one)
+    none = read_afm_file(_write_gwy(tmp_path / "amp.gwy", [("Amplitude forward", z, "V", 1e-6, "m"),
+                                                           ("Amplitude backward", z, "V", 1e-6, "m")]))
+    with pytest.raises(ReaderError, match="no height channel"):
+        pick_height_pair(none)
+
+
+def test_ibw_asylum_layers_note_and_scan_down(tmp_path):
+    trace, retrace = _grating()
+    note = {"FastScanSize": 3.2e-7, "SlowScanSize": 2.4e-7, "ScanRate": 2.5, "ScanDown": 1, "ImagingMode": "AC Mode"}
+    path = _write_ibw(tmp_path / "asylum.ibw", {"HeightTrace": trace, "HeightRetrace": retrace,
+                                                "ZSensorTrace": trace, "ZSensorRetrace": retrace,
+                                                "PhaseTrace": trace * 1e9}, note)
+    afm = read_afm_file(path)
+    assert afm.format == "ibw" and len(afm.channels) == 5
+    assert [(c.name, c.direction) for c in afm.channels[:2]] == [("Height", "trace"), ("Height", "retrace")]
+    t, r, picked = pick_height_pair(afm)
+    assert t.name == "Height" and "ZSensor" in picked  # the Z drive first, the sensor named as an alternative
+    assert t.size_m == pytest.approx((3.2e-7, 2.4e-7)) and t.line_time_s == pytest.approx(0.2)  # 1/(2·2.5 Hz)
+    np.testing.assert_allclose(t.data, trace[::-1], rtol=1e-6)  # ScanDown: rows reversed to scan order
+    assert afm.channels[4].quantity == "phase" and afm.channels[4].unit == "deg"
+
+
+def test_nanoscope_scaling_directions_and_line_time(tmp_path):
+    rng = np.random.default_rng(1)
+    raw_t = rng.integers(-20000, 20000, (16, 20)).astype(np.int16)
+    raw_r = rng.integers(-20000, 20000, (16, 20)).astype(np.int16)
+    path = _write_nanoscope(tmp_path / "scan.001", [("Height", "Trace", raw_t), ("Height", "Retrace", raw_r),
+                                                    ("Amplitude", "Trace", raw_t)], rate_hz=2.0, frame="Down")
+    afm = read_afm_file(path)
+    assert afm.format == "nanoscope" and [c.direction for c in afm.channels] == ["trace", "retrace", "trace"]
+    t, r, _ = pick_height_pair(afm)
+    nm_per_lsb = 440.0 / 65536 * 20.0  # Z scale (V over 2^16 LSB) × Zsens (nm/V)
+    np.testing.assert_allclose(r.data, raw_r[::-1] * nm_per_lsb * 1e-9)  # Frame direction Down: rows reversed
+    assert t.unit == "m" and t.size_m == pytest.approx((5e-6, 5e-6 * 16 / 20))
+    assert t.line_time_s == pytest.approx(0.25)  # Scan Rate 2 Hz = 2 trace+retrace lines per second
+
+
+def test_npz_run_images_and_plain_pair(tmp_path):
+    trace, retrace = _grating()
+    plain = tmp_path / "pair.npz"
+    np.savez(plain, trace=trace, retrace=retrace, scan_size_m=[3.2e-6, 2.4e-6], line_rate_hz=5.0)
+    afm = read_afm_file(plain)
+    t, r, _ = pick_height_pair(afm)
+    assert afm.format == "npz" and t.line_time_s == pytest.approx(0.1) and np.array_equal(r.data, retrace)
+    run = tmp_path / "images.npz"
+    np.savez(run, trace_none=trace, retrace_none=retrace, trace_diapi=trace, retrace_diapi=retrace,
+             truth=trace[:8], image_pixel_size_m=[1e-7, 1e-7], image_origin_m=[0, 0],
+             sample_pixel_size_m=[5e-8, 5e-8])
+    channels = {(c.name, c.direction): c for c in read_afm_file(run).channels}
+    assert set(channels) == {("none", "trace"), ("none", "retrace"), ("diapi", "trace"), ("diapi", "retrace"),
+                             ("truth", "")}
+    assert channels["none", "trace"].size_m == pytest.approx((3.2e-6, 2.4e-6))
+    assert channels["truth", ""].size_m == pytest.approx((1.6e-6, 0.4e-6))
+    assert pick_height_pair(read_afm_file(run), "diapi")[0].name == "diapi"
+
+
+# --- bad input: one line, exit 2, nothing written ----------------------------------------------------
+
+def _bad_files(tmp_path):
+    png = b"\x89PNG\r\n\x1a\n" + bytes(200)
+    random = np.random.default_rng(7).integers(0, 256, 4000, dtype=np.uint8).tobytes()
+    files = {"empty.nid": b"", "picture.nid": png, "noise.nid": random, "noise.ibw": random, "noise.spm": random,
+             "noise.gwy": random, "noise.003": b"\\*File list\r\n\\Version: 0x05120130\r\n", "table.xyz": b"1 2 3"}
+    trace, retrace = _grating()
+    made = [_write_gwy(tmp_path / "made.gwy", [("Z forward", trace, "m", 1e-6, "m"), ("Z backward", retrace, "m", 1e-6, "m")]),
+            _write_ibw(tmp_path / "made.ibw", {"HeightTrace": trace, "HeightRetrace": retrace}, {"ScanRate": 1}),
+            _write_nanoscope(tmp_path / "made.spm", [("Height", "Trace", np.zeros((16, 16), np.int16))])]
+    for path in made:  # cut in half: gwyfile would loop forever, igor2 logs, pySPM reads past the end
+        files[f"cut_{path.name}"] = path.read_bytes()[:path.stat().st_size // 2]
+        path.unlink()
+    for name, content in files.items():
+        (tmp_path / name).write_bytes(content)
+    return [tmp_path / name for name in files] + [tmp_path / "missing.nid"]
+
+
+def test_bad_files_raise_one_line(tmp_path):
+    for path in _bad_files(tmp_path):
+        with pytest.raises(ReaderError) as info:
+            read_afm_file(path)
+        assert path.name in str(info.value) and "\n" not in str(info.value)
+
+
+def test_bad_files_exit_2_in_inspect_and_diagnose_with_nothing_written(tmp_path):
+    for path in _bad_files(tmp_path):
+        result = runner.invoke(app, ["inspect", str(path)])
+        assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
+        out = tmp_path / f"diag-{path.name}"
+        result = runner.invoke(app, ["diagnose", "--measured", str(path), "--out", str(out)])
+        assert result.exit_code == 2 and "Traceback" not in result.output, result.output
+        assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("diag")) == []
+
+
+# --- end to end on an instrument file (small, so that the image diagnosis stays fast) ------------------
+
+def test_diagnose_measured_runs_on_a_nanoscope_file(tmp_path):
+    trace, retrace = _grating(lines=20, points=32)
+    to_raw = lambda h: np.round(h / (440.0 / 65536 * 20.0 * 1e-9)).astype(np.int16)  # noqa: E731
+    path = _write_nanoscope(tmp_path / "grating.spm", [("Height", "Trace", to_raw(trace)),
+                                                       ("Height", "Retrace", to_raw(retrace))], size_um=3.2, rate_hz=1.0)
+    out = tmp_path / "diag"
+    result = runner.invoke(app, ["diagnose", "--measured", str(path), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert result.output.splitlines()[0].startswith("grating.spm: picked 'Height' trace/retrace")
+    report = json.loads((out / "diagnosis.json").read_text())
+    config = json.loads((out / "manifest.json").read_text())
+    assert "verdict" in report and (out / "summary.txt").exists()
+    assert "picked 'Height'" in json.dumps(config)
