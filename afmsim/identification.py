@@ -22,9 +22,9 @@ from afmsim.metrics import summarize
 from afmsim.paper import TABLE2_MEANS, TABLE2_RATIO
 from afmsim.reproducible import single_blas_thread
 from afmsim.runio import write_json
-from afmsim.stage import IdentificationRecord, XYStage, default_stage, identification_experiment
+from afmsim.stage import HYSTERESIS_MODELS, IdentificationRecord, XYStage, default_stage, identification_experiment
 
-__all__ = ["IdentificationResult", "identify", "table1", "table2", "write_identification"]
+__all__ = ["IdentificationResult", "identify", "plant_law", "table1", "table2", "write_identification"]
 
 
 @dataclass
@@ -37,6 +37,15 @@ class IdentificationResult:
     training: IdentificationRecord
     evaluations: list = field(repr=False)
     settings: dict = field(default_factory=dict)
+
+
+def plant_law(stage: XYStage) -> str:
+    """The plant's hysteresis family, as ``HYSTERESIS_MODELS`` names it (``"linear"`` when off)."""
+    params = stage.x.params
+    if not params.hysteresis_enabled:
+        return "linear"
+    kind = type(params.hysteresis)
+    return next((name for name, cls in HYSTERESIS_MODELS.items() if cls is kind), kind.__name__)
 
 
 @single_blas_thread
@@ -62,7 +71,7 @@ def identify(stage: XYStage | None = None, *, seed: int = 0, experiments: int = 
             error = model.predict(record.displacement) - record.voltage
             errors[name]["rms_V"].append(float(np.sqrt(np.mean(error**2))))
             errors[name]["max_V"].append(float(np.max(np.abs(error))))
-    settings = dict(seed=seed, experiments=experiments, n_operators=n_operators, **run)
+    settings = dict(seed=seed, experiments=experiments, n_operators=n_operators, plant=plant_law(stage), **run)
     return IdentificationResult(fitted, errors, fit_seconds, training, evaluations, settings)
 
 
@@ -79,7 +88,7 @@ def table1(result: IdentificationResult) -> str:
 def table2(result: IdentificationResult) -> str:
     """Table 2 analogue: RMS and maximum voltage errors per experiment, mean and σ."""
     names = list(result.errors)
-    head = "Table 2 analogue: model voltage errors (V) on fresh experiments"
+    head = f"Table 2 analogue: model voltage errors (V) on fresh experiments, {result.settings.get('plant', '?')} plant"
     cols = " ".join(f"{'RMS ' + n.upper():>11}" for n in names) + "  " + " ".join(f"{'max ' + n.upper():>11}" for n in names)
     lines = [head, f"{'exp':>5} " + cols]
     n_exp = len(result.errors[names[0]]["rms_V"])
@@ -96,7 +105,8 @@ def table2(result: IdentificationResult) -> str:
     lines.append(f"{'paper':>5} " + paper.replace("nan", "  -"))
     if "spi" in names and "diapi" in names:
         ratio = summarize(result.errors["diapi"]["rms_V"])["mean"] / summarize(result.errors["spi"]["rms_V"])["mean"]
-        lines.append(f"DIAPI/SPI mean RMS ratio: {ratio:.2f} (paper {TABLE2_RATIO:.2f})")
+        lines.append(f"DIAPI/SPI mean RMS ratio: {ratio:.2f} (paper {TABLE2_RATIO:.2f}; the plant's skew is calibrated "
+                     "to Table 2's SPI error, see README 'Reference results')")
     return "\n".join(lines)
 
 

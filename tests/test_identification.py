@@ -35,3 +35,18 @@ def test_same_seed_same_result():
     a = identify(seed=5, experiments=2)
     b = identify(seed=5, experiments=2)
     assert a.errors == b.errors
+
+
+@pytest.mark.parametrize("law", ["preisach", "duhem"])
+def test_both_plant_laws_hold_their_table2_calibration(law):
+    """Each plant's skew was set so that SPI's mean RMS error is paper Table 2's 0.080 V (a
+    calibration, README "what is calibrated to what", made with ``afmsim identify``'s default seed 0
+    — the training record's noise moves SPI's error by ~0.003 V between seeds); this pins it.
+    DIAPI's error then follows."""
+    from afmsim.stage import default_stage
+
+    r = identify(default_stage(law), seed=0, experiments=2, models=["spi", "diapi"])
+    assert r.settings["plant"] == law and f"{law} plant" in table2(r)
+    spi, diapi = np.mean(r.errors["spi"]["rms_V"]), np.mean(r.errors["diapi"]["rms_V"])
+    assert spi == pytest.approx(0.080, abs=0.002)
+    assert diapi < 0.4 * spi
