@@ -104,13 +104,20 @@ def plot_trace_retrace(trace: HeightMap, retrace: HeightMap, path, *, title: str
     ``scale`` is the run's :class:`ColourScale` (by default this pair's own).
     """
     scale = scale or run_colour_scales({"": (trace, retrace)})
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.9), layout="constrained", sharey=True)
+    fig = plt.figure(figsize=(15, 4.9))
+    # Fixed grid (faster than a layout engine): two equal height panels and their bar, a gap, the difference and its bar.
+    grid = fig.add_gridspec(1, 6, width_ratios=[1, 1, 0.05, 0.3, 1, 0.05], left=0.055, right=0.95, bottom=0.12,
+                            top=0.86, wspace=0.08)
+    axes = [fig.add_subplot(grid[0])]
+    axes += [fig.add_subplot(grid[1], sharex=axes[0], sharey=axes[0]), fig.add_subplot(grid[4], sharex=axes[0],
+                                                                                     sharey=axes[0])]
     heights = np.concatenate([above_substrate(m).z.ravel() / NM for m in (trace, retrace)])
     for ax, image, label in zip(axes, (trace, retrace), ("trace (left → right)", "retrace (right → left)")):
         shown = show_height(ax, image, scale.height_nm)
         ax.set_title(label)
     axes[0].set_ylabel("y (µm)")
-    fig.colorbar(shown, ax=axes[:2], label="height above substrate (nm)", shrink=0.92,
+    axes[1].tick_params(labelleft=False)
+    fig.colorbar(shown, cax=fig.add_subplot(grid[2]), label="height above substrate (nm)",
                  extend=_extend(heights, *scale.height_nm))
     diff = (trace.z - retrace.z) / NM
     lim = scale.difference_nm
@@ -119,7 +126,8 @@ def plot_trace_retrace(trace: HeightMap, retrace: HeightMap, path, *, title: str
                            interpolation="nearest")
     axes[2].set_title("trace − retrace (mismatch)")
     axes[2].set_xlabel("x (µm)")
-    fig.colorbar(shown, ax=axes[2], label="trace − retrace (nm)", shrink=0.92, extend=_extend(diff, -lim, lim))
+    axes[2].tick_params(labelleft=False)
+    fig.colorbar(shown, cax=fig.add_subplot(grid[5]), label="trace − retrace (nm)", extend=_extend(diff, -lim, lim))
     fig.suptitle(title)
     path = Path(path)
     fig.savefig(path, dpi=100)

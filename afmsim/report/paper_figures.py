@@ -64,11 +64,13 @@ def plot_scan_figure(trace: HeightMap, retrace: HeightMap, path, *, kind: str, t
     its own panel so that it hides nothing.
     """
     scale = scale or run_colour_scales({"": (trace, retrace)})
-    fig = plt.figure(figsize=(17, 4.9), layout="constrained")
-    grid = fig.add_gridspec(1, 6, width_ratios=[1, 1, 0.06, 0.1, 1.25, 0.8])  # column 3: room for the bar's label
+    fig = plt.figure(figsize=(17, 4.9))
+    # Fixed grid (faster than a layout engine); columns 3 and 5 are gaps for the labels beside them.
+    grid = fig.add_gridspec(1, 7, width_ratios=[1, 1, 0.05, 0.42, 1.25, 0.2, 0.8], left=0.045, right=0.99,
+                            bottom=0.12, top=0.86, wspace=0.08)
     ax_a = fig.add_subplot(grid[0])
     ax_b = fig.add_subplot(grid[1], sharex=ax_a, sharey=ax_a)
-    ax_bar, ax, ax_zoom = fig.add_subplot(grid[2]), fig.add_subplot(grid[4]), fig.add_subplot(grid[5])
+    ax_bar, ax, ax_zoom = fig.add_subplot(grid[2]), fig.add_subplot(grid[4]), fig.add_subplot(grid[6])
     centre_t = central_lens(trace) if kind != "grating" else None
     centre_r = central_lens(retrace) if kind != "grating" else None
     for a, image, label in zip((ax_a, ax_b), (trace, retrace), ("(a) trace", "(b) retrace")):
@@ -133,8 +135,11 @@ def plot_binarized(images: dict, path, *, title: str) -> Path:
     """Binarized trace, retrace (threshold = each image's mean, eq. 8) and their disagreement,
     one row per controller; NSL2 in the row label. ``images``: controller → (trace, retrace)."""
     n = len(images)
-    fig, axes = plt.subplots(n, 3, figsize=(10, 2.9 * n + 0.8), squeeze=False, layout="constrained",
-                             sharex=True, sharey=True)
+    height = 2.9 * n + 0.8
+    fig, axes = plt.subplots(n, 3, figsize=(10, height), squeeze=False, sharex=True, sharey=True)
+    # Fixed margins in inches (the suptitle above the first row's titles, x labels below the last row).
+    fig.subplots_adjust(left=0.1, right=0.98, bottom=0.45 / height, top=1 - 0.75 / height, wspace=0.2,
+                        hspace=0.5 / 2.9 * 2)
     for row, (name, (trace, retrace)) in zip(axes, images.items()):
         bt, br = binarize(trace.z), binarize(retrace.z)
         try:

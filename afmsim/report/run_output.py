@@ -67,48 +67,42 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
     (folder / "scenario.yaml").write_text(scenario_yaml)
     pairs = {name: (im.trace, im.retrace) for name, im in result.images.items()}
     best = best_controller(metrics)
-    jobs, warnings = [], []
-    if renders != "none":
-        warning = render_unavailable()
-        if warning:
-            warnings.append(warning)
-        else:
-            jobs += [("renders", func, args, {}) for func, args in
-                     render_jobs(pairs, result.truth, result.mesh, folder, name=scenario.name, which=renders, best=best)]
     scale = run_colour_scales(pairs) if pairs else None
+    figure_jobs = []
     for name, (trace, retrace) in pairs.items():
         title = f"{scenario.name}: controller '{name}' (experiment 1)"
-        jobs.append(("figures", plot_scan_figure, (trace, retrace, folder / f"figure_{name}.png"),
-                     {"kind": kind, "title": title, "scale": scale}))
-        jobs.append(("figures", plot_trace_retrace, (trace, retrace, folder / f"image_{name}.png"),
-                     {"title": title, "scale": scale}))
+        figure_jobs.append((plot_scan_figure, (trace, retrace, folder / f"figure_{name}.png"),
+                            {"kind": kind, "title": title, "scale": scale}))
+        figure_jobs.append((plot_trace_retrace, (trace, retrace, folder / f"image_{name}.png"),
+                            {"title": title, "scale": scale}))
     if pairs:
-        jobs.append(("figures", plot_binarized, (pairs, folder / "binarized.png"),
-                     {"title": f"{scenario.name}: binarized images used for NSL2 (experiment 1)"}))
-    counts = {stage: sum(j[0] == stage for j in jobs) for stage in ("figures", "renders")}
-    done = dict.fromkeys(counts, 0)
-
-    def tick(index, _done, _total):
-        stage = jobs[index][0]
-        done[stage] += 1
-        if progress is not None:
-            progress(stage, done[stage], counts[stage])
-
-    written = [folder / "metrics.json", folder / "scenario.yaml"]
-    with worker_pool(min(workers, max(1, len(jobs)))) as executor:
-        futures = ordered_map(executor, _call, [(func, args, kw) for _, func, args, kw in jobs], tick, wait=False)
+        figure_jobs.append((plot_binarized, (pairs, folder / "binarized.png"),
+                            {"title": f"{scenario.name}: binarized images used for NSL2 (experiment 1)"}))
+    ticker = _Ticker(progress)
+    written, warnings = [folder / "metrics.json", folder / "scenario.yaml"], []
+    with worker_pool(max(1, workers)) as executor:
+        # The rendering probe (a subprocess, about a second) runs on a worker while figures are drawn.
+        probe = executor.submit(render_unavailable) if executor is not None and renders != "none" else None
+        figures = ordered_map(executor, _call, figure_jobs, ticker("figures", len(figure_jobs)), wait=False)
         written += _write_arrays(result, folder, scenario_yaml)
-        paths = futures()
-    written += paths
+        warning = None if renders == "none" else probe.result() if probe is not None else render_unavailable()
+        views = []
+        if warning:
+            warnings.append(warning)
+        elif renders != "none":
+            views = [(func, args, {}) for func, args in render_jobs(pairs, result.truth, result.mesh, folder,
+                                                                    name=scenario.name, which=renders, best=best)]
+        renders_done = ordered_map(executor, _call, views, ticker("renders", len(views)), wait=False)
+        figure_paths, render_paths = figures(), renders_done()
+    written += figure_paths + render_paths
     if progress is not None:
         progress("report", 0, 1)
     table, table_paths = write_nsl2_table(metrics, kind, folder)
     written += table_paths
-    by_stage = {stage: [p for (s, *_), p in zip(jobs, paths) if s == stage] for stage in counts}
     provenance = {"afmsim": versions()["afmsim"], **git_revision(), "date_utc": time.strftime("%Y-%m-%d %H:%M UTC"),
                   **result.timings, "figures_s": time.perf_counter() - started}
     written += write_report(folder, result=result, metrics=metrics, nsl2_md=nsl2_markdown(table),
-                            scenario_yaml=scenario_yaml, figures=by_stage["figures"], renders=by_stage["renders"],
+                            scenario_yaml=scenario_yaml, figures=figure_paths, renders=render_paths,
                             renders_choice=renders, best=best, warnings=warnings, provenance=provenance)
     if progress is not None:
         progress("report", 1, 1)
@@ -117,6 +111,19 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
 
 def _call(func, args, kwargs):
     return func(*args, **kwargs)
+
+
+class _Ticker:
+    """``ticker(stage, total)`` gives the ``on_done`` of :func:`ordered_map` that reports ``stage`` to
+    ``progress(stage, done, total)`` (nothing when ``progress`` is None)."""
+
+    def __init__(self, progress):
+        self.progress = progress
+
+    def __call__(self, stage: str, total: int):
+        if self.progress is None:
+            return None
+        return lambda _index, done, _total: self.progress(stage, done, total)
 
 
 def _write_arrays(result: ScenarioResult, folder: Path, scenario_yaml: str) -> list[Path]:
