@@ -38,7 +38,7 @@ from afmsim.samples.loaders import MAP_SUFFIXES, MESH_SUFFIXES
 from afmsim.stage import HYSTERESIS_MODELS, default_stage
 
 __all__ = ["Scenario", "ScenarioError", "load_scenario", "parse_scenario", "read_yaml", "check_sample_files",
-           "suggest", "MAX_FILE_BYTES", "MAX_DEPTH"]
+           "suggest", "unreachable", "MAX_FILE_BYTES", "MAX_DEPTH"]
 
 MAX_FILE_BYTES = 1 << 20
 """Largest scenario file read, bytes (1 MiB; the bundled ones are under 1 KiB)."""
@@ -300,17 +300,10 @@ class Scenario(_Block):
 
     @model_validator(mode="after")
     def _reachable(self):
-        # the field must lie inside the stage's rated travel on each axis (PiezoAxis.travel_m, 100 µm);
-        # the drive range above it (9.1 → 10 V) is the margin for the compensators' and the resonance's
-        # excursions, and the rest position (0 V) bounds the field from below (offset_um >= 0)
-        stage = default_stage(self.stage.hysteresis)
-        for k, (label, axis) in enumerate((("x", stage.x), ("y", stage.y))):
-            offset, size = self.scan.offset_um[k], self.scan.size_um[k]
-            travel_um = axis.params.travel_m / 1e-6
-            if offset + size > travel_um * (1 + 1e-12):
-                raise _FieldError(None, f"scan.offset_um[{k}] + scan.size_um[{k}] = {offset:g} + {size:g} = "
-                                        f"{offset + size:g} µm exceeds the stage travel {travel_um:g} µm ({label}): "
-                                        f"lower offset_um or size_um")
+        # a twin's stage (instrument:) is checked by load_scenario, which resolves its file
+        problem = None if self.instrument is not None else unreachable(self.scan, default_stage(self.stage.hysteresis))
+        if problem:
+            raise _FieldError(None, problem)
         return self
 
     @model_validator(mode="after")
@@ -323,6 +316,23 @@ class Scenario(_Block):
                               f"ki × Z-loop period = {self.z_feedback.ki_per_s * step_s:.3g} must be <= 0.5 "
                               f"(unstable loop): lower ki_per_s or raise numerics.z_loop_rate_hz")
         return self
+
+
+def unreachable(scan: ScanSpec, stage, whose: str = "the stage") -> str | None:
+    """The one-line refusal of a scan field that leaves ``stage``'s travel on an axis, else None.
+
+    The field must lie inside each axis's rated travel (:attr:`afmsim.stage.AxisParams.travel_m`,
+    100 µm by default); the drive range above it (9.1 → 10 V) is the margin for the compensators'
+    and the resonance's excursions beyond an intended position, and the rest position (0 V)
+    bounds the field from below (``offset_um >= 0``).
+    """
+    for k, (label, axis) in enumerate((("x", stage.x), ("y", stage.y))):
+        offset, size = scan.offset_um[k], scan.size_um[k]
+        travel_um = axis.params.travel_m / 1e-6
+        if offset + size > travel_um * (1 + 1e-12):
+            return (f"scan.offset_um[{k}] + scan.size_um[{k}] = {offset:g} + {size:g} = {offset + size:g} µm exceeds "
+                    f"{whose} travel {travel_um:g} µm ({label}): lower offset_um or size_um")
+    return None
 
 
 _TAGS = ("microlens", "grating", "mesh", "heightmap")
@@ -478,13 +488,16 @@ def load_scenario(path) -> Scenario:
     """
     scenario = parse_scenario(read_yaml(path))
     if scenario.instrument is not None:
-        from afmsim.twin.instrument import load_instrument
+        from afmsim.twin.instrument import build_twin_stage, load_instrument
 
         instrument_path = Path(path).parent / scenario.instrument
         try:
-            load_instrument(instrument_path)
+            instrument = load_instrument(instrument_path)
         except ScenarioError as error:
             raise ScenarioError(f"instrument: {error}") from None
+        problem = unreachable(scenario.scan, build_twin_stage(instrument), whose="the instrument's")
+        if problem:
+            raise ScenarioError(problem)
         scenario = scenario.model_copy(update={"instrument": instrument_path})
     return scenario
 

@@ -8,7 +8,7 @@ from afmsim.compensation import NominalLinear
 from afmsim.experiment import run_scenario
 from afmsim.scan import RasterGeometry, ZFeedback, ZStage, raster_trajectory, scan_frame
 from afmsim.samples import HeightMap
-from afmsim.scenario import ScenarioError, parse_scenario
+from afmsim.scenario import ScenarioError, load_scenario, parse_scenario
 from afmsim.stage import HYSTERESIS_MODELS, default_stage
 
 UM = 1e-6
@@ -46,6 +46,22 @@ def test_a_field_that_ends_on_the_travel_is_accepted():
     parse_scenario(_scenario(scan={"offset_um": [2, 0], "size_um": [98, 100]}))
     with pytest.raises(ScenarioError, match=r"= 100.5 µm exceeds the stage travel 100 µm \(x\)"):
         parse_scenario(_scenario(scan={"offset_um": [2.5, 0], "size_um": [98, 100]}))
+
+
+def test_a_twin_scenario_is_checked_against_its_instruments_travel(tmp_path):
+    import yaml
+
+    (tmp_path / "instrument.yaml").write_text(yaml.safe_dump({"name": "small", "fast_axis": {"travel_um": 50.0},
+                                                              "slow_axis": {"travel_um": 150.0}}))
+    def scenario(offset, size):
+        path = tmp_path / "twin.yaml"
+        path.write_text(yaml.safe_dump(_scenario(instrument="instrument.yaml",
+                                                 scan={"offset_um": offset, "size_um": size})))
+        return load_scenario(path)
+    assert scenario([2, 2], [48, 98]).instrument == tmp_path / "instrument.yaml"   # 50 µm x, 100 µm y: fine
+    with pytest.raises(ScenarioError, match=r"^scan.offset_um\[0\] \+ scan.size_um\[0\] = 2 \+ 50 = 52 µm exceeds "
+                                            r"the instrument's travel 50 µm \(x\)"):
+        scenario([2, 2], [50, 20])
 
 
 def test_clipped_drive_samples_are_those_outside_the_amplifier_range():
