@@ -45,7 +45,7 @@ def read_afm_file(path) -> AfmFile:
     """
     path = Path(path)
     if not path.is_file():
-        raise ReaderError(f"{path}: no such file")
+        raise ReaderError(f"{path}: {'a folder, not a file' if path.is_dir() else 'no such file'}")
     reader = reader_for(path)
     if reader is None:
         raise ReaderError(f"{path.name}: unknown AFM file type '{path.suffix}'; readable: {FORMATS}")
