@@ -139,16 +139,18 @@ def reading(metrics: dict, scenario) -> list[str]:
                    f"{nsl2['spi']:,.0f})")
         out.append(f"{verdict}; the paper found e_D = {paper['e_D']:+.1%} ({label}).")
         span = scenario.scan.size_um[0] * UM
+        law = getattr(scenario.stage, "hysteresis", "preisach")
         if e <= 0:
+            plant = ("afmsim's default (Preisach) stage shapes its minor-loop branches by the reversal points, not by the "
+                     "direction, and on it DIAPI overtakes SPI only on scans from about 70 µm "
+                     "(`scenarios/microlens_full_range.yaml`: e_D ≈ +59 %)" if law == "preisach" else
+                     f"how far that matters depends on the plant's minor-loop law (here {law})")
             out.append(
                 f"**Why, at this scan size.** The scan spans {span / UM:g} µm of the stage's {STAGE_TRAVEL_M / UM:.0f} µm "
                 "travel, so the stage runs on minor loops. DIAPI switches between separate trace and retrace weights "
                 "(ω_af, ω_ab, eqs. 5–7) with the direction of motion, so its drive jumps by Σ(ω_af − ω_ab)·H at every "
-                "reversal; the least-squares fit makes that jump vanish only at the ends of the identification loop, and "
-                "afmsim's (Preisach) stage shapes its minor-loop branches by the reversal points, not by the direction. "
-                "On afmsim's stage DIAPI overtakes SPI only on scans from about 70 µm "
-                "(`scenarios/microlens_full_range.yaml`: e_D ≈ +59 %; README \"Reference results\"). The paper does not "
-                "state its scan size.")
+                f"reversal; the least-squares fit makes that jump vanish only at the ends of the identification loop; "
+                f"{plant} (README \"Reference results\"). The paper does not state its scan size.")
         else:
             out.append(f"The scan spans {span / UM:g} µm of the stage's {STAGE_TRAVEL_M / UM:.0f} µm travel: DIAPI's "
                        "direction-switched weights transfer from the identification loop, as in the paper.")
