@@ -224,18 +224,22 @@ def _score_one(images: ScanImages, kind: str) -> tuple[dict, list[str]]:
 def run_scenario(scenario: Scenario, progress=None, *, workers: int = 1) -> ScenarioResult:
     """Run every experiment of a scenario.
 
-    ``progress(stage, done, total)`` is called if given, ``stage`` one of "identify", "scan",
-    "metrics". The scans (experiments × controllers) and their scores run on ``workers`` forked
-    processes (:mod:`afmsim.workers`); the result is bit-identical for any ``workers``. The
-    identification of each experiment is run once and shared by its controllers. The wall times
-    of the stages are in ``result.timings`` (s).
+    ``progress(stage, done, total)`` is called if given, ``stage`` one of "sample" (building and
+    tip-dilating it), "identify", "scan", "metrics". The scans (experiments × controllers) and
+    their scores run on ``workers`` forked processes (:mod:`afmsim.workers`); the result is
+    bit-identical for any ``workers``. The identification of each experiment is run once and
+    shared by its controllers. The wall times of the stages are in ``result.timings`` (s).
     """
     started = time.perf_counter()
+    if progress is not None:
+        progress("sample", 0, 1)
     geometry = scan_geometry(scenario)
     trajectory = raster_trajectory(geometry)
     truth, mesh = build_sample(scenario, geometry)
     tip = mlct_tip(scenario.tip.shape, scenario.tip.apex_radius_nm * NM, scenario.tip.half_angle_deg)
     dilated = dilate(truth, tip)
+    if progress is not None:
+        progress("sample", 1, 1)
     stage = build_stage(scenario)
     z_stage = ZStage(sensitivity_m_per_V=scenario.z_stage.sensitivity_um_per_V * UM,
                      max_voltage_V=scenario.z_stage.travel_um / scenario.z_stage.sensitivity_um_per_V,

@@ -18,5 +18,6 @@ def test_parallel_scans_equal_serial_bits():
     for name, images in serial.images.items():
         np.testing.assert_array_equal(parallel.images[name].trace.z, images.trace.z)
         np.testing.assert_array_equal(parallel.images[name].retrace.z, images.retrace.z)
-    assert [s for s in stages if s[1] == s[2]] == [("identify", 2, 2), ("scan", 6, 6), ("metrics", 6, 6)]
+    assert [s for s in stages if s[1] == s[2]] == [("sample", 1, 1), ("identify", 2, 2), ("scan", 6, 6), ("metrics", 6, 6)]
+    assert all(0 <= done <= total for _, done, total in stages)
     assert set(parallel.timings) >= {"simulate_s", "metrics_s"} and parallel.timings["simulate_s"] > 0
