@@ -44,7 +44,8 @@ try:
 except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
-__all__ = ["run_folder", "remove_stale_staging", "default_run_dir", "write_json", "versions", "git_revision"]
+__all__ = ["run_folder", "remove_stale_staging", "default_run_dir", "write_json", "replace_atomically", "versions",
+           "git_revision"]
 
 _LOCK = ".lock"
 
@@ -106,19 +107,29 @@ def _create_unique(parent: Path, prefix: str, create):
     raise FileExistsError(f"no free name {prefix}* in {parent}")
 
 
-def write_json(path, data) -> None:
-    """Write JSON (numpy values converted, non-finite floats as null) atomically, permissions per umask."""
+def replace_atomically(path, write) -> Path:
+    """Call ``write(temporary_path)`` beside ``path``, then rename it onto ``path`` (no partial file).
+
+    The temporary file is created empty first (mode 0666 less the umask), so the result has the
+    permissions of any file the user creates.
+    """
     path = Path(path)
     tmp, fd = _create_unique(path.parent, f".{path.name}.",
                              lambda p: os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+    os.close(fd)
     try:
-        with os.fdopen(fd, "w") as handle:
-            json.dump(_jsonable(data), handle, indent=2)
-            handle.write("\n")
+        write(tmp)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    return path
+
+
+def write_json(path, data) -> None:
+    """Write JSON (numpy values converted, non-finite floats as null) atomically, permissions per umask."""
+    text = json.dumps(_jsonable(data), indent=2) + "\n"
+    replace_atomically(path, lambda tmp: Path(tmp).write_text(text))
 
 
 def default_run_dir(kind: str, name: str, base="outputs") -> Path:

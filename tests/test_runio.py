@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from afmsim.runio import remove_stale_staging, run_folder, write_json
+from afmsim.runio import remove_stale_staging, replace_atomically, run_folder, write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -109,6 +109,7 @@ def test_run_folders_and_their_files_follow_the_umask(tmp_path, umask, folder_mo
         with run_folder(tmp_path / "o", config={}, seed=0, command="test") as staging:
             write_json(staging / "scores.json", {"a": 1})
             (staging / "plain.txt").write_text("written by open()")
+            replace_atomically(staging / "table.csv", lambda tmp: Path(tmp).write_text("a,b\n"))   # sweep tables
         write_json(tmp_path / "beside.json", [1, 2])
     finally:
         os.umask(previous)
@@ -116,6 +117,6 @@ def test_run_folders_and_their_files_follow_the_umask(tmp_path, umask, folder_mo
         return stat.S_IMODE(path.stat().st_mode)
     assert mode(tmp_path / "o") == folder_mode
     assert {p.name: mode(p) for p in (tmp_path / "o").iterdir()} == {
-        "manifest.json": file_mode, "scores.json": file_mode, "plain.txt": file_mode}
+        "manifest.json": file_mode, "scores.json": file_mode, "plain.txt": file_mode, "table.csv": file_mode}
     assert mode(tmp_path / "beside.json") == file_mode
     assert sorted(p.name for p in tmp_path.iterdir()) == ["beside.json", "o"]     # no temporary left behind

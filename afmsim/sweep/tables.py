@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import pandas as pd
 
+from afmsim.runio import replace_atomically
 from afmsim.sweep.spec import Run
 
 __all__ = ["read_rows", "write_tables", "replace_atomically"]
@@ -31,20 +30,6 @@ def read_rows(runs_dir, runs: list[Run]) -> pd.DataFrame:
     table = table[fixed + scores]
     table[scores] = table[scores].astype(float)
     return table
-
-
-def replace_atomically(path, write) -> Path:
-    """Call ``write(temporary_path)`` beside ``path``, then rename it onto ``path`` (no partial file)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def _flat(table: pd.DataFrame) -> pd.DataFrame:
