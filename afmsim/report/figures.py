@@ -28,7 +28,7 @@ import numpy as np  # noqa: E402
 from afmsim.samples.heightmap import HeightMap  # noqa: E402
 
 __all__ = ["plot_trace_retrace", "height_extent_um", "substrate_level", "above_substrate", "robust_limits",
-           "ColourScale", "run_colour_scales", "height_cmap", "show_height", "PERCENTILES"]
+           "ColourScale", "run_colour_scales", "height_cmap", "show_height", "colour_extend", "PERCENTILES"]
 
 UM, NM = 1e-6, 1e-9
 #: Robust colour limits: these percentiles of the run's heights (the rest is drawn over/under).
@@ -85,7 +85,8 @@ def height_cmap(name: str = "afmhot"):
     return plt.get_cmap(name).with_extremes(under=_UNDER, over=_OVER)
 
 
-def _extend(values: np.ndarray, lo: float, hi: float) -> str:
+def colour_extend(values: np.ndarray, lo: float, hi: float) -> str:
+    """The colour bar's ``extend``: a pointed end on each side that has values outside ``[lo, hi]``."""
     below, above = bool(np.any(values < lo)), bool(np.any(values > hi))
     return {(True, True): "both", (True, False): "min", (False, True): "max"}.get((below, above), "neither")
 
@@ -118,7 +119,7 @@ def plot_trace_retrace(trace: HeightMap, retrace: HeightMap, path, *, title: str
     axes[0].set_ylabel("y (µm)")
     axes[1].tick_params(labelleft=False)
     fig.colorbar(shown, cax=fig.add_subplot(grid[2]), label="height above substrate (nm)",
-                 extend=_extend(heights, *scale.height_nm))
+                 extend=colour_extend(heights, *scale.height_nm))
     diff = (trace.z - retrace.z) / NM
     lim = scale.difference_nm
     cmap = plt.get_cmap("RdBu_r").with_extremes(under="#301060", over="#602000")
@@ -127,7 +128,7 @@ def plot_trace_retrace(trace: HeightMap, retrace: HeightMap, path, *, title: str
     axes[2].set_title("trace − retrace (mismatch)")
     axes[2].set_xlabel("x (µm)")
     axes[2].tick_params(labelleft=False)
-    fig.colorbar(shown, cax=fig.add_subplot(grid[5]), label="trace − retrace (nm)", extend=_extend(diff, -lim, lim))
+    fig.colorbar(shown, cax=fig.add_subplot(grid[5]), label="trace − retrace (nm)", extend=colour_extend(diff, -lim, lim))
     fig.suptitle(title)
     path = Path(path)
     fig.savefig(path, dpi=100)

@@ -24,7 +24,14 @@ from afmsim.metrics import lens_centres  # noqa: E402
 from afmsim.metrics.nsl2 import binarize, nsl2  # noqa: E402
 from afmsim.samples.heightmap import HeightMap  # noqa: E402
 
-from .figures import ColourScale, above_substrate, height_extent_um, run_colour_scales, show_height  # noqa: E402
+from .figures import (  # noqa: E402
+    ColourScale,
+    above_substrate,
+    colour_extend,
+    height_extent_um,
+    run_colour_scales,
+    show_height,
+)
 
 __all__ = ["plot_scan_figure", "plot_binarized", "plot_identification_loops", "plot_identification_errors",
            "plot_time_saving", "central_lens"]
@@ -79,10 +86,7 @@ def plot_scan_figure(trace: HeightMap, retrace: HeightMap, path, *, kind: str, t
     ax_a.set_ylabel("y (µm)")
     ax_b.tick_params(labelleft=False)
     heights = np.concatenate([above_substrate(m).z.ravel() / NM for m in (trace, retrace)])
-    lo, hi = scale.height_nm
-    extend = {(True, True): "both", (True, False): "min", (False, True): "max"}.get(
-        (bool(np.any(heights < lo)), bool(np.any(heights > hi))), "neither")
-    fig.colorbar(shown, cax=ax_bar, label="height above substrate (nm)", extend=extend)
+    fig.colorbar(shown, cax=ax_bar, label="height above substrate (nm)", extend=colour_extend(heights, *scale.height_nm))
     _cross(ax_a, centre_t, {})
     if centre_t is not None:
         ax_b.plot(centre_t[0] / UM, centre_t[1] / UM, marker="+", markersize=16, markeredgewidth=1.2,
