@@ -10,15 +10,15 @@ from pathlib import Path
 from typing import Literal, Optional
 
 import typer
-from typer.core import TyperCommand
+from typer.core import TyperCommand, TyperGroup
 
 from afmsim.stage import HYSTERESIS_MODELS
 
 _Hysteresis = Literal[tuple(HYSTERESIS_MODELS)]  # every plant family, listed in --help
 
 
-class _Command(TyperCommand):
-    """A command whose on/off flags (``--quiet``, ``--help``) show no ``<bool>`` value in --help: they take none."""
+class _FlagsTakeNoValue:
+    """On/off flags (``--quiet``, ``--help``) show no ``<bool>`` value in --help: they take none."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -33,6 +33,14 @@ class _Command(TyperCommand):
         return option
 
 
+class _Command(_FlagsTakeNoValue, TyperCommand):
+    """Every afmsim command."""
+
+
+class _Group(_FlagsTakeNoValue, TyperGroup):
+    """The ``afmsim`` group itself (its --help)."""
+
+
 class _App(typer.Typer):
     """A Typer app whose commands are :class:`_Command` unless they ask for another class."""
 
@@ -40,7 +48,7 @@ class _App(typer.Typer):
         return super().command(*args, cls=cls, **kwargs)
 
 
-app = _App(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+app = _App(cls=_Group, add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
            help="afmsim — a virtual atomic-force microscope with hysteretic piezo stages.")
 
 

@@ -53,6 +53,7 @@ def test_help_lists_the_choices_and_shows_no_value_for_flags():
     assert "<preisach|symmetric>" in _help("diagnose") and "<auto|scenario|trace>" in _help("diagnose")
     for name in get_command(app).commands:
         assert "<bool>" not in _help(name), name
+    assert "<bool>" not in _help() and "Show this message and exit" in _help()
     (quiet,) = [line for line in _help("run").splitlines() if "--quiet" in line]
     assert "No progress bar" in quiet and "<" not in quiet                  # a flag takes no value
 
