@@ -1,0 +1,121 @@
+"""Rate-independent hysteresis of other families than the baseline's, for null validation records.
+
+Independent code: none of these shares an equation or a basis with the diagnosis baseline
+(:mod:`.model`: smoothed relays on a regular grid of the recorded range) or with afmsim's own plant
+(:class:`afmsim.stage.AsymmetricPreisach`: a 60-level grid with a power-exponential density):
+
+* :func:`scattered_preisach` — a Preisach model whose ideal (sharp) relays have thresholds drawn
+  at random in the plane (no grid), with a bimodal density of widths and centres;
+* :func:`generalised_pi` — the generalised Prandtl–Ishlinskii model (Al Janaideh, Rakheja & Su,
+  IEEE/ASME Trans. Mechatronics 16 (2011) 734): play operators whose rising and falling
+  envelopes are different tanh curves, ``w = max(γ_r(v) − r, min(γ_f(v) + r, w⁻))``, exponential
+  threshold density;
+* :func:`bouc_wen` — the Bouc–Wen model of the Duhem class (Low & Guo, J. MEMS 4 (1995) 230 for
+  piezo stacks): ``x = d·v − h``, ``dh/dv = A − (β·sgn(dv·h) + γ)·|h|^n``, integrated in voltage
+  sub-steps (rate-independent: only the voltage path matters). Its minor loops drift before they
+  close (no return-point memory), so periodic parts of a drive close their loops after a transient.
+
+Every generator maps a 0–10 V drive to about ``travel_m`` of displacement and draws its shape from
+``rng`` (a seeded :class:`numpy.random.Generator`), so a seed is a different stage.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["NULL_FAMILIES", "scattered_preisach", "generalised_pi", "bouc_wen", "null_plant"]
+
+V_MAX = 10.0
+
+
+def _to_travel(x: np.ndarray, travel_m: float) -> np.ndarray:
+    return (x - x[0]) * travel_m / (np.ptp(x) or 1.0)
+
+
+def scattered_preisach(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6,
+                       n_relays: int = 20000) -> np.ndarray:
+    """Displacement (m) of a Preisach plant with ``n_relays`` sharp relays at random thresholds."""
+    n1 = rng.binomial(n_relays, 0.6)
+    width = np.r_[rng.gamma(2.0, rng.uniform(0.4, 1.0), n1), rng.gamma(3.0, rng.uniform(0.8, 1.6), n_relays - n1)]
+    centre = np.r_[rng.normal(rng.uniform(3.0, 7.0), rng.uniform(1.5, 3.0), n1),
+                   rng.uniform(-1.0, V_MAX + 1.0, n_relays - n1)]
+    up, down = centre + width / 2, centre - width / 2  # α ≥ β
+    weight = rng.lognormal(0.0, 0.5, n_relays)
+    out = _relay_sum(v, up, down, weight)
+    reversible = rng.uniform(0.5, 1.5) * out.max() / V_MAX * (v + rng.uniform(-0.02, 0.04) * v**2)
+    return _to_travel(out + reversible, travel_m)
+
+
+def generalised_pi(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6,
+                   n_operators: int = 40) -> np.ndarray:
+    """Displacement (m) of a generalised PI plant: different tanh envelopes for rising and falling input."""
+    a = rng.uniform(0.12, 0.25)
+    c, r_min = rng.uniform(3.0, 6.0), rng.uniform(0.2, 0.4)
+    bend = rng.uniform(-1.0, 1.0) * r_min  # |γ_f − γ_r| ≤ r_min < 2r: no operator jumps at a reversal
+
+    def rising(u):  # loading envelope γ_r (V)
+        return np.tanh(a * (u - c)) / a
+
+    def falling(u):  # unloading envelope γ_f (V)
+        return rising(u) + bend * np.sin(np.pi * u / V_MAX)
+
+    r = np.linspace(r_min, rng.uniform(3.0, 5.0), n_operators)
+    p = np.exp(-rng.uniform(0.3, 0.8) * r)
+    w = np.clip(np.full(n_operators, rising(v[0])), falling(v[0]) - r, falling(v[0]) + r)
+    out = np.empty(v.size)
+    for k, u in enumerate(v):
+        w = np.maximum(rising(u) - r, np.minimum(falling(u) + r, w))
+        out[k] = p @ w
+    return _to_travel(out + rng.uniform(0.0, 1.0) * p.sum() * v / V_MAX * 2, travel_m)
+
+
+def bouc_wen(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6, substeps: int = 8) -> np.ndarray:
+    """Displacement (m) of a Bouc–Wen plant ``x = d·v − h`` (h from rest, 0)."""
+    d = 1.0
+    amp = rng.uniform(0.15, 0.3)  # A: hysteresis gain relative to d
+    n = rng.choice([1.0, 1.5, 2.0])
+    beta = rng.uniform(0.3, 0.8)
+    gamma = rng.uniform(-0.4, 0.4) * beta
+    scale = (amp / (beta + abs(gamma))) ** (1.0 / n) if beta + gamma > 0 else 1.0  # h saturates near here
+    beta, gamma = beta / scale**n, gamma / scale**n
+    out = d * v - _bouc_wen_h(v, amp, beta, gamma, float(n), substeps)
+    return _to_travel(out, travel_m)
+
+
+@njit(cache=True)
+def _relay_sum(v, up, down, weight):  # pragma: no cover - compiled
+    """Σ weight·relay(v): sharp relays, on at ``up``, off at ``down``, from rest below ``v[0]``."""
+    out = np.zeros(v.size)
+    for i in range(up.size):
+        on = v[0] >= up[i]
+        for k in range(v.size):
+            if v[k] >= up[i]:
+                on = True
+            elif v[k] <= down[i]:
+                on = False
+            if on:
+                out[k] += weight[i]
+    return out
+
+
+@njit(cache=True)
+def _bouc_wen_h(v, amp, beta, gamma, n, substeps):  # pragma: no cover - compiled
+    h = np.zeros(v.size)
+    hk = 0.0
+    for k in range(1, v.size):
+        dv = (v[k] - v[k - 1]) / substeps
+        for _ in range(substeps):
+            hk += dv * (amp - (beta * np.sign(dv * hk) + gamma) * abs(hk) ** n)
+        h[k] = hk
+    return h
+
+
+NULL_FAMILIES = {"scattered_preisach": scattered_preisach, "generalised_pi": generalised_pi, "bouc_wen": bouc_wen}
+
+
+def null_plant(family: str, v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6) -> np.ndarray:
+    """Displacement (m) of a ``family`` plant (a key of :data:`NULL_FAMILIES`) driven by ``v`` (0–10 V)."""
+    if family not in NULL_FAMILIES:
+        raise ValueError(f"unknown hysteresis family {family!r}; known: {sorted(NULL_FAMILIES)}")
+    return NULL_FAMILIES[family](np.asarray(v, dtype=float), rng, travel_m=travel_m)

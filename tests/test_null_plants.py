@@ -1,0 +1,62 @@
+"""Null records from hysteresis families other than the baseline's (issue 11, point 3).
+
+The generators (:mod:`afmsim.diagnosis.null_plants`) are checked to be rate-independent and
+hysteretic; the diagnosis of their records (no added effect) must never call a named effect the
+explanation, and — the target, not met yet — should find nothing missing. Seed 2026 was not used
+while developing (development seeds: 100–103).
+"""
+
+import numpy as np
+import pytest
+
+from afmsim.diagnosis import diagnose_loops
+from afmsim.diagnosis.null_plants import NULL_FAMILIES, null_plant
+from afmsim.diagnosis.validation import excitation
+
+FRESH_SEED = 2026
+
+
+def _triangles(points_per_edge):
+    """A 0–10 V triangle path through fixed vertices, sampled ``points_per_edge`` per edge."""
+    vertices = [0.0, 8.0, 2.0, 9.5, 4.0, 6.0, 1.0, 9.0, 0.5]
+    edges = [np.linspace(a, b, points_per_edge, endpoint=False) for a, b in zip(vertices[:-1], vertices[1:])]
+    return np.r_[np.concatenate(edges), vertices[-1]]
+
+
+@pytest.mark.parametrize("family", sorted(NULL_FAMILIES))
+def test_null_plants_are_rate_independent_and_hysteretic(family):
+    slow, fast = _triangles(400), _triangles(100)  # the same voltage path, four times fewer samples
+    x_slow = null_plant(family, slow, np.random.default_rng(1))
+    x_fast = null_plant(family, fast, np.random.default_rng(1))
+    assert np.ptp(x_slow) == pytest.approx(100e-6, rel=1e-9)
+    # the same path gives the same displacement at the shared samples (Bouc–Wen: integration error only)
+    assert np.max(np.abs(x_slow[::4] - x_fast)) < 2e-3 * np.ptp(x_slow)
+    # rising (0 → 8 V) and falling (8 → 2 V) branches differ at 5 V by more than 1 % of the travel
+    up = np.interp(5.0, slow[:400], x_slow[:400])
+    down = np.interp(-5.0, -slow[400:800], x_slow[400:800])
+    assert abs(down - up) > 0.01 * np.ptp(x_slow)
+
+
+@pytest.fixture(scope="module")
+def null_reports():
+    out = {}
+    for family in sorted(NULL_FAMILIES):
+        rng = np.random.default_rng([FRESH_SEED, len(out)])
+        t, v = excitation("sines", 1000.0, 12.0, rng)
+        x = null_plant(family, v, rng) + 8e-9 * rng.standard_normal(t.size)
+        out[family] = diagnose_loops({"t_s": t, "v_V": v, "x_m": x})[0]
+    return out
+
+
+def test_no_named_effect_explains_a_null(null_reports):
+    for family, rep in null_reports.items():
+        assert rep["status"] != "explained", (family, rep["verdict"])
+        if rep["status"] == "nothing_missing":
+            assert rep["baseline"]["gap_to_noise"] <= 2.0
+
+
+@pytest.mark.xfail(strict=True, reason="issue 11.3 not met: the 16-level relay-grid baseline leaves 22-870x the noise floor "
+                                       "on other hysteresis families (see README, 'Status and honesty')")
+def test_other_hysteresis_families_come_out_nothing_missing(null_reports):
+    gaps = {family: rep["baseline"]["gap_to_noise"] for family, rep in null_reports.items()}
+    assert all(g <= 2.0 for g in gaps.values()), gaps
