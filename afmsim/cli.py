@@ -491,10 +491,12 @@ def predict_command(
     except (ValueError, FileExistsError) as error:
         _fail(str(error))
     if "rms_error_m" in result:
+        default = result["default_stage"]
         typer.echo(f"shift profile: measured RMS {result['measured_rms_m'] * 1e6:.3f} µm; twin error "
-                   f"{result['rms_error_m'] * 1e6:.3f} µm, default stage {result['default_stage']['rms_error_m'] * 1e6:.3f} µm")
-        typer.echo(f"NSL2: measured {result['nsl2']['measured']:.0f}, twin {result['nsl2']['predicted']:.0f}, "
-                   f"default stage {result['default_stage']['nsl2']['predicted']:.0f}")
+                   f"{result['rms_error_m'] * 1e6:.3f} µm"
+                   + (f", default stage {default['rms_error_m'] * 1e6:.3f} µm" if default["rms_error_m"] else ""))
+        typer.echo(f"NSL2: measured {result['nsl2']['measured']:.0f}, twin {result['nsl2']['predicted']:.0f}"
+                   + (f", default stage {default['nsl2']['predicted']:.0f}" if default["nsl2"] else ""))
     else:
         typer.echo(f"held-out RMS: twin {result['twin']['held_out_rms_m'] * 1e6:.3f} µm, "
                    f"default stage {result['default_stage']['held_out_rms_m'] * 1e6:.3f} µm")

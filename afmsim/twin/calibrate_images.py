@@ -5,22 +5,26 @@ What a trace/retrace pair constrains, and how it is fitted here:
 * **Fast axis, trace vs retrace** (the displacement field between the two scan directions): the
   shift profile (:mod:`afmsim.twin.shift_profile`, 16 windows) of the measured pair is matched by
   the twin's (:func:`afmsim.twin.simulate.fast_pair`) through the fast axis' Preisach hysteretic
-  fraction, relay-width scale and skew, by weighted least squares (:func:`scipy.optimize.least_squares`,
-  weights = each window's standard error) on the even lines, then refitted once against the measured
+  fraction, relay-width scale and skew, its creep γ (at line rates creep acts as a rate-dependent
+  hysteresis) and its drive lag (the amplifier's bandwidth: a lag τ moves every feature by
+  −2·v·τ, a shift that is flat across the field, where hysteresis closes at the reversals), by
+  weighted least squares (:func:`scipy.optimize.least_squares`,
+  weights = each window's standard error) on up to 64 of the even lines, then refitted once against the measured
   profile minus the full scan's departure from ``fast_pair`` at the first optimum; the odd lines
   are held out and predicted by the full scan (:func:`afmsim.twin.simulate.simulate_scan`).
   Uncertainties: √diag((JᵀJ)⁻¹·max(1, χ²/dof)) at the optimum.
-* **Z loop lag: not fitted.** With one scan size and one line rate a Z-loop lag and the hysteresis
-  width move features the same way (against the scan direction) and cannot be told apart; a slow
-  contact-mode PI loop also parachutes on downhill edges, which the fast model's linear lag does
-  not. The lag stays at the default (marked so); two line rates would separate them.
+* **Z loop lag: not fitted.** A Z-loop lag and a drive lag both move features against the scan
+  direction in proportion to the scan speed; one pair cannot tell them apart, so the twin puts the
+  whole velocity-proportional shift into the drive lag (equivalent for predictions at any line
+  rate) and the Z loop stays at the default (marked so). A slow contact-mode PI loop would also
+  parachute on downhill edges, which the fast model leaves out.
 * **Height noise**: 1.4826·MAD of the second difference along x, / √6 (white noise).
 * **Slow axis**: the trace/retrace offset along y (whole-image registration) is reported; the
   slow axis' hysteresis is not constrained by one pair and stays at the default.
 * **Absolute nonlinearity** (``pitch_m`` given): the local period of the trace per window against
   the known pitch gives the trace branch's local sensitivity; reported with its spread.
 
-Everything else (creep, drift, resonance, amplifier, travel, where the image sits in the travel) is
+Everything else (drift, resonance, travel, where the image sits in the travel) is
 not constrained by one image pair and stays at afmsim's default, marked ``default``.
 """
 
@@ -47,7 +51,12 @@ FITTED = {  # parameter -> (block, field, lower, upper, log-scaled in the fit, u
     "fast_axis.hysteretic_fraction": ("fast_axis", "hysteretic_fraction", 0.0, 1.0, False),
     "fast_axis.width_decay": ("fast_axis", "width_decay", 0.01, 5.0, True),
     "fast_axis.skew": ("fast_axis", "skew", -1.0, 1.0, False),
+    "fast_axis.amplifier_bandwidth_hz": ("fast_axis", "amplifier_bandwidth_hz", 1.0, 1e5, True),
+    "fast_axis.creep_gamma_per_decade": ("fast_axis", "creep_gamma_per_decade", 1e-4, 0.1, False),
 }
+
+MAX_FIT_LINES = 64
+"""Training lines the fit uses at most (evenly spread over the even lines): the median over more buys little."""
 
 
 @dataclass(frozen=True)
@@ -76,8 +85,16 @@ def _to_theta(values: dict) -> np.ndarray:
     return np.array([np.log(values[k]) if FITTED[k][4] else values[k] for k in FITTED])
 
 
+CREEP_STEP = 1e-4
+"""The fit moves creep γ on this grid (per decade): each new γ costs the plant a relaxation-bank
+discretisation (~0.1 s), and γ finer than this changes no profile measurably."""
+
+
 def _from_theta(theta) -> dict:
-    return {k: float(np.exp(v) if FITTED[k][4] else v) for k, v in zip(FITTED, theta)}
+    values = {k: float(np.exp(v) if FITTED[k][4] else v) for k, v in zip(FITTED, theta)}
+    creep = "fast_axis.creep_gamma_per_decade"
+    values[creep] = max(round(values[creep] / CREEP_STEP) * CREEP_STEP, FITTED[creep][2])
+    return values
 
 
 def twin_profile(instrument: Instrument, trace, scan: RealScan, n_windows: int = FIT_WINDOWS):
@@ -115,6 +132,22 @@ def local_period_m(image, pixel_size_m: float, n_windows: int = 4) -> np.ndarray
     return periods
 
 
+JACOBIAN_STEPS = {"fast_axis.hysteretic_fraction": 0.01, "fast_axis.width_decay": 0.05, "fast_axis.skew": 0.05,
+                  "fast_axis.amplifier_bandwidth_hz": 0.05, "fast_axis.creep_gamma_per_decade": 5 * CREEP_STEP}
+"""Central-difference steps for the uncertainties (θ units: log for the log-scaled parameters)."""
+
+
+def _jacobian(residual, theta, lo, hi) -> np.ndarray:
+    """Central differences of ``residual`` at ``theta`` with :data:`JACOBIAN_STEPS` (one-sided at a bound)."""
+    columns = []
+    for k, key in enumerate(FITTED):
+        step = JACOBIAN_STEPS[key]
+        up, down = theta.copy(), theta.copy()
+        up[k], down[k] = min(theta[k] + step, hi[k]), max(theta[k] - step, lo[k])
+        columns.append((residual(up) - residual(down)) / max(up[k] - down[k], 1e-12))
+    return np.column_stack(columns)
+
+
 def calibrate_images(trace, retrace, scan: RealScan, *, start: Instrument | None = None, pitch_m: float | None = None,
                      max_nfev: int = 60) -> ImageCalibration:
     """Fit the twin's fast-axis hysteresis to a measured pair (see the module docstring).
@@ -125,7 +158,8 @@ def calibrate_images(trace, retrace, scan: RealScan, *, start: Instrument | None
     retrace = np.asarray(retrace, dtype=np.float64)
     start = start or Instrument()
     dx = scan.size_m[0] / scan.pixels
-    train = slice(0, None, 2)
+    even = np.arange(0, trace.shape[0], 2)
+    train = even[np.unique(np.linspace(0, even.size - 1, min(even.size, MAX_FIT_LINES)).round().astype(int))]
     measured = shift_profile(trace[train], retrace[train], dx, FIT_WINDOWS)
     usable = np.isfinite(measured.shift_m)
     if usable.sum() < 4:
@@ -144,20 +178,32 @@ def calibrate_images(trace, retrace, scan: RealScan, *, start: Instrument | None
             return np.where(np.isfinite(diff), diff, 5 * dx) * weight
 
         best = None
+        if len(starts) > 2:  # refine the two starts that fit best as they are
+            costs = [np.sum(residual(np.clip(_to_theta(v), lo + 1e-9, hi - 1e-9)) ** 2) for v in starts]
+            starts = [starts[i] for i in np.argsort(costs)[:2]]
         for values in starts:
             found = least_squares(residual, np.clip(_to_theta(values), lo + 1e-9, hi - 1e-9), bounds=(lo, hi),
                                   x_scale="jac", diff_step=1e-3, max_nfev=max_nfev)
             if best is None or found.cost < best.cost:
                 best = found
-        return best
+        return best, residual
 
-    # starts: the default loop scaled to the measured mean shift, narrow and default relay widths
+    # starts: the measured mean shift as hysteresis (the default loop scaled to it), as a drive lag
+    # (a lag τ moves every feature by −2·v·τ at scan speed v), and half of each
     default_profile = twin_profile(start, trace[train], scan_train)
-    ratio = np.nanmean(measured.shift_m) / np.nanmean(default_profile.shift_m)
+    mean_shift = float(np.nanmean(measured.shift_m))
+    ratio = mean_shift / np.nanmean(default_profile.shift_m)
     h0 = float(np.clip(start.fast_axis.hysteretic_fraction * ratio, 0.005, 0.9)) if np.isfinite(ratio) else 0.1
-    starts = [{"fast_axis.hysteretic_fraction": h0, "fast_axis.width_decay": w0, "fast_axis.skew": start.fast_axis.skew}
-              for w0 in (0.35, 0.1, 0.03)]
-    best = fit(measured.shift_m, starts)
+    speed = scan.size_m[0] / scan.line_time_s
+    lag0 = max(-mean_shift, 0.1 * dx) / (2 * speed)
+    bw_lag = float(np.clip(1 / (2 * np.pi * lag0), 2.0, 5e4))
+    bw_default = start.fast_axis.amplifier_bandwidth_hz
+    skew0, creep0 = start.fast_axis.skew, start.fast_axis.creep_gamma_per_decade
+    keys = list(FITTED)
+    starts = [dict(zip(keys, row)) for row in (
+        (h0, 0.35, skew0, bw_default, creep0), (h0, 0.03, skew0, bw_default, creep0),
+        (0.005, 0.35, skew0, bw_lag, 0.002), (h0 / 2, 0.03, skew0, 2 * bw_lag, creep0 / 2))]
+    best, _ = fit(measured.shift_m, starts)
     # one correction for what fast_pair leaves out (line-to-line creep, slow axis, the PI Z loop):
     # refit against the measured profile minus the full scan's departure from fast_pair at the optimum
     first = _with(start, _from_theta(best.x))
@@ -169,24 +215,28 @@ def calibrate_images(trace, retrace, scan: RealScan, *, start: Instrument | None
     departure = (shift_profile(full_trace, full_retrace, dx, FIT_WINDOWS).shift_m
                  - twin_profile(first, trace[train], scan_train).shift_m)
     departure = np.where(np.isfinite(departure), departure, 0.0)
-    best = fit(measured.shift_m - departure, [_from_theta(best.x)])
+    best, residual = fit(measured.shift_m - departure, [_from_theta(best.x)])
     values = _from_theta(best.x)
     dof = max(1, best.fun.size - best.x.size)
     chi2 = 2 * best.cost / dof
-    try:
-        cov = np.linalg.pinv(best.jac.T @ best.jac) * max(1.0, chi2)
-    except np.linalg.LinAlgError:  # pragma: no cover - pinv converges for finite jacobians
-        cov = np.full((best.x.size, best.x.size), np.nan)
+    jac = _jacobian(residual, best.x, lo, hi)
+    blind = np.linalg.norm(jac, axis=0) < 1e-9 * max(np.linalg.norm(jac), 1e-300)
+    cov = np.linalg.pinv(jac.T @ jac) * max(1.0, chi2)
     sd_theta = np.sqrt(np.clip(np.diag(cov), 0, None))
+    sd_theta[blind] = np.inf  # the profile does not move with it: not constrained
     # back to field units: d(exp θ) = exp θ dθ for the log-scaled ones
-    uncertainties = {k: float(values[k] * s if FITTED[k][4] else s) for k, s in zip(FITTED, sd_theta)}
-    scale = np.where(sd_theta > 0, sd_theta, 1.0)
+    uncertainties = {k: (float(values[k] * s if FITTED[k][4] else s) if np.isfinite(s) else None)
+                     for k, s in zip(FITTED, sd_theta)}
+    scale = np.where((sd_theta > 0) & np.isfinite(sd_theta), sd_theta, 1.0)
     correlation = cov / np.outer(scale, scale)
     instrument = _with(start, values)
     noise = height_noise_m(trace)
     instrument = instrument.model_copy(update={"z_loop": instrument.z_loop.model_copy(
         update={"height_noise_nm": float(min(noise * 1e9, 100.0))})})
-    facts = {"height_noise_m": noise, "chi2_per_dof": chi2, "full_scan_minus_fast_model_m": departure}
+    facts = {"height_noise_m": noise, "chi2_per_dof": chi2, "full_scan_minus_fast_model_m": departure,
+             # a direction-dependent Z offset (feedback error, tilt levelled per direction); the twin
+             # does not model it and NSL2 (binarized at each image's mean) does not see it
+             "retrace_minus_trace_height_m": float(np.median(retrace - trace))}
     shift_x, shift_y = image_shift(trace, retrace, (dx, scan.size_m[1] / scan.lines))
     facts["whole_image_shift_m"] = {"x": shift_x, "y": shift_y}
     if pitch_m is not None:

@@ -153,7 +153,9 @@ def build_twin_axis(spec: AxisSpec) -> PiezoAxis:
         hysteretic_fraction=spec.hysteretic_fraction, width_decay=spec.width_decay, width_power=spec.width_power,
         skew=spec.skew, width_skew=spec.width_skew, reversible_curvature=spec.reversible_curvature)
     return PiezoAxis(AxisParams(hysteresis=hysteresis, amplifier_bandwidth_hz=spec.amplifier_bandwidth_hz,
-                                creep_gamma=spec.creep_gamma_per_decade, drift_rate_m_per_s=spec.drift_nm_per_min * NM / 60,
+                                # below 1e-6 per decade creep is nil (and its relaxation bank degenerate)
+                                creep_gamma=spec.creep_gamma_per_decade if spec.creep_gamma_per_decade >= 1e-6 else 0.0,
+                                drift_rate_m_per_s=spec.drift_nm_per_min * NM / 60,
                                 resonance_hz=spec.resonance_hz, damping_ratio=spec.damping_ratio,
                                 sensor_noise_m=spec.sensor_noise_nm * NM))
 

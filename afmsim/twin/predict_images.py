@@ -55,8 +55,11 @@ def predict_images(instrument: Instrument, trace, retrace, scan: RealScan, *, se
     twin = _simulated(build_twin_stage(instrument), twin_z_feedback(instrument), trace, scan, instrument,
                       instrument.fast_axis.travel_um * 1e-6, seed)
     stock = default_stage()
-    default = _simulated(stock, ZFeedback(), trace, scan, instrument, stock.x.params.travel_m
-                         if hasattr(stock.x.params, "travel_m") else 100e-6, seed)
+    stock_travel_m = stock.x.params.sensitivity_m_per_V * stock.x.params.hysteresis.calibration_amplitude_V
+    try:
+        default = _simulated(stock, ZFeedback(), trace, scan, instrument, stock_travel_m, seed)
+    except ValueError as error:  # the scan does not fit the default stage's travel
+        default = error
     measured_rms = _rms(measured.shift_m)
 
     def scored(result) -> dict:
@@ -67,12 +70,18 @@ def predict_images(instrument: Instrument, trace, retrace, scan: RealScan, *, se
                 "nsl2": {"measured": measured_nsl2, "predicted": nsl2},
                 "nsl2_relative_error": (nsl2 - measured_nsl2) / measured_nsl2 if measured_nsl2 > 0 else None}
 
-    twin_scores, default_scores = scored(twin), scored(default)
+    twin_scores = scored(twin)
+    if isinstance(default, ValueError):
+        default_scores = {"predicted_shift_m": None, "rms_error_m": None, "nsl2": None,
+                          "not_predicted": f"afmsim's default stage cannot scan this: {default}"}
+        default = (None, None, None, None)
+    else:
+        default_scores = scored(default)
     prediction = {
         "x_m": measured.x_m, "measured_shift_m": measured.shift_m, "measured_shift_stderr_m": measured.stderr_m,
         "measured_rms_m": measured_rms, **twin_scores,
         "predicted_over_default_rms_error": (twin_scores["rms_error_m"] / default_scores["rms_error_m"]
-                                             if default_scores["rms_error_m"] > 0 else None),
+                                             if default_scores["rms_error_m"] else None),
         "default_stage": default_scores,
         "scan": {"size_m": scan.size_m, "pixels": scan.pixels, "lines": scan.lines, "line_time_s": scan.line_time_s},
         "seed": seed,

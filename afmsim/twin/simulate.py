@@ -38,7 +38,9 @@ def simulate_scan(stage: XYStage, z_feedback: ZFeedback, trace: np.ndarray, scan
     """(trace, retrace) images (lines, pixels) of ``scan`` simulated on ``stage`` with ``z_feedback``.
 
     ``trace`` (lines, pixels, m) is the measured trace, the sample estimate. Drive: the nominal linear
-    sensitivity of each axis (the open-loop raster); the Z stage is afmsim's default.
+    sensitivity of each axis (the open-loop raster). The Z stage is linear: the real Z stage's
+    hysteresis is already in the measured trace that serves as the sample (a hysteretic twin Z
+    stage would apply it twice and drift the recorded height by ~0.1 µm over a tilted frame).
     """
     geometry = twin_geometry(scan, travel_m, overscan_fraction, centre_fraction, samples_per_pixel)
     trajectory = raster_trajectory(geometry)
@@ -50,7 +52,7 @@ def simulate_scan(stage: XYStage, z_feedback: ZFeedback, trace: np.ndarray, scan
     dx = scan.size_m[0] / scan.pixels
     surface = sample_from_trace(trace, x_trace[:, columns], y_trace[:, columns].mean(axis=1), dx / 2,
                                 margin_m=0.05 * geometry.size[0] + 5 * dx)
-    images = scan_frame(surface, trajectory, stage, *controllers, ZStage(), z_feedback, rng)
+    images = scan_frame(surface, trajectory, stage, *controllers, ZStage(hysteresis=False), z_feedback, rng)
     return images.trace.z[:, columns], images.retrace.z[:, columns]
 
 

@@ -79,6 +79,11 @@ def calibrate(measured, out, *, pitch_m: float | None = None, scenario=None, cha
         pair = load_measured_pair(measured, channel, line_time_s)
         header = []
         start = Instrument(name=name, calibrated_from=str(measured))
+        # a scan wider than afmsim's 100 µm travel gets a travel with 30 % to spare (not constrained)
+        needed_um = 1.3 * pair.scan.size_m[0] * (1 + (pair.overscan_fraction or 0.0)) * 1e6
+        if needed_um > start.fast_axis.travel_um:
+            start = start.model_copy(update={"fast_axis": start.fast_axis.model_copy(update={"travel_um": needed_um}),
+                                             "slow_axis": start.slow_axis.model_copy(update={"travel_um": needed_um})})
         if pair.overscan_fraction is not None:
             start = start.model_copy(update={"scan": ScanHabitSpec(overscan_fraction=min(pair.overscan_fraction, 1.0))})
             header.append("scan.overscan_fraction")
@@ -118,7 +123,7 @@ def _image_report(cal, pair, instrument: Instrument, seed: int) -> tuple[dict, d
                  "line_time_s": pair.scan.line_time_s, "overscan_fraction": pair.overscan_fraction},
         "parameters": parameters,
         "parameter_correlation": {"order": list(FITTED), "matrix": cal.correlation},
-        "fit": {"lines": "even lines (0, 2, 4, ...)", "windows": int(cal.measured_profile.x_m.size),
+        "fit": {"lines": "up to 64 of the even lines (0, 2, 4, ...), evenly spread", "windows": int(cal.measured_profile.x_m.size),
                 "train_profile_rms_error_m": cal.train_profile_rms_error_m, **cal.facts},
         "held_out": {"lines": "odd lines (1, 3, 5, ...), full twin scan", "x_m": held["x_m"],
                      "measured_shift_m": held["measured_shift_m"], "twin_shift_m": held["predicted_shift_m"],
