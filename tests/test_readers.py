@@ -37,8 +37,8 @@ README = {
 
 # --- fixture writers --------------------------------------------------------------------------
 
-def _write_gwy(path, fields):
-    """``fields``: (title, z, z_unit, xy_real, xy_unit) each, written with gwyfile."""
+def _write_gwy(path, fields, meta=None):
+    """``fields``: (title, z, z_unit, xy_real, xy_unit) each, written with gwyfile; ``meta`` on every channel."""
     from gwyfile.objects import GwyContainer, GwyDataField, GwySIUnit
 
     container = GwyContainer()
@@ -47,6 +47,8 @@ def _write_gwy(path, fields):
                                                si_unit_xy=GwySIUnit(unitstr=xy_unit),
                                                si_unit_z=GwySIUnit(unitstr=z_unit))
         container[f"/{i}/data/title"] = title
+        if meta:
+            container[f"/{i}/meta"] = GwyContainer(meta)
     container.tofile(str(path))
     return path
 
@@ -221,6 +223,8 @@ def test_gwy_vendor_titles_units_and_directions(tmp_path):
     assert trace.name == "Z-Axis" and trace.unit == "m" and trace.size_m == pytest.approx((2e-6, 2e-6))
     np.testing.assert_allclose(retrace.data, (z + 1) * 1e-9)
     assert afm.channels[2].quantity == "phase" and afm.channels[2].line_time_s is None
+    kept = _write_gwy(tmp_path / "kept.gwy", [("Height (Trace)", z, "m", 1e-6, "m")], meta={"Scan Rate": "2 Hz"})
+    assert read_afm_file(kept).channels[0].line_time_s == pytest.approx(0.25)  # 1 / (2 · 2 Hz)
 
 
 def test_gwy_one_direction_or_no_height_is_refused(tmp_path):
@@ -323,16 +327,29 @@ def test_bad_files_exit_2_in_inspect_and_diagnose_with_nothing_written(tmp_path)
 
 # --- end to end on an instrument file (small, so that the image diagnosis stays fast) ------------------
 
-def test_diagnose_measured_runs_on_a_nanoscope_file(tmp_path):
+def _made(fmt, path, trace, retrace):
+    """The same trace/retrace pair (m) written as a Nanoscope, Asylum or Gwyddion file, line time 0.5 s."""
+    if fmt == "spm":
+        to_raw = lambda h: np.round(h / (440.0 / 65536 * 20.0 * 1e-9)).astype(np.int16)  # noqa: E731
+        return _write_nanoscope(path, [("Height", "Trace", to_raw(trace)), ("Height", "Retrace", to_raw(retrace))],
+                                size_um=3.2, rate_hz=1.0)
+    if fmt == "ibw":
+        return _write_ibw(path, {"HeightTrace": trace, "HeightRetrace": retrace},
+                          {"FastScanSize": 3.2e-6, "SlowScanSize": 2.0e-6, "ScanRate": 1.0})
+    return _write_gwy(path, [("Z-Axis forward", trace, "m", 3.2e-6, "m"), ("Z-Axis backward", retrace, "m", 3.2e-6, "m")],
+                      meta={"Time/Line": "500ms"})
+
+
+@pytest.mark.parametrize("fmt", ["spm", "ibw", "gwy"])
+def test_inspect_and_diagnose_measured_run_on_each_made_format(tmp_path, fmt):
     trace, retrace = _grating(lines=20, points=32)
-    to_raw = lambda h: np.round(h / (440.0 / 65536 * 20.0 * 1e-9)).astype(np.int16)  # noqa: E731
-    path = _write_nanoscope(tmp_path / "grating.spm", [("Height", "Trace", to_raw(trace)),
-                                                       ("Height", "Retrace", to_raw(retrace))], size_um=3.2, rate_hz=1.0)
+    path = _made(fmt, tmp_path / f"grating.{fmt}", trace, retrace)
+    listing = json.loads(runner.invoke(app, ["inspect", str(path), "--json"]).output)
+    assert [c["line_time_s"] for c in listing["channels"]] == pytest.approx([0.5, 0.5])
     out = tmp_path / "diag"
     result = runner.invoke(app, ["diagnose", "--measured", str(path), "--out", str(out)])
     assert result.exit_code == 0, result.output
-    assert result.output.splitlines()[0].startswith("grating.spm: picked 'Height' trace/retrace")
+    assert result.output.splitlines()[0].startswith(f"grating.{fmt}: picked ")
     report = json.loads((out / "diagnosis.json").read_text())
-    config = json.loads((out / "manifest.json").read_text())
     assert "verdict" in report and (out / "summary.txt").exists()
-    assert "picked 'Height'" in json.dumps(config)
+    assert "picked" in json.dumps(json.loads((out / "manifest.json").read_text()))

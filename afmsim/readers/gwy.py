@@ -5,7 +5,9 @@ Every ``/N/data`` data field becomes a channel; its title carries name and direc
 ``"trace none"`` as ``afmsim run`` writes). Units from the fields' ``si_unit_z``/``si_unit_xy``.
 Rows as stored: a ``.gwy`` keeps no slow-scan direction, so row 0 is taken as the first line
 scanned (true for files ``afmsim`` writes; a file converted by Gwyddion from another format may
-have been flipped by the import). No line time: Gwyddion does not keep one.
+have been flipped by the import). Line time from the channel's metadata (``/N/meta``) where an
+import kept it: ``Time/Line`` or ``Line time`` (one direction, as Nanosurf), else ``Scan rate``/
+``ScanRate`` (Hz, trace + retrace lines per second, as Bruker and Asylum: ``1 / (2 · rate)``).
 
 The top-level object's declared size is checked against the file's length before ``gwyfile``
 parses it: ``gwyfile`` 0.3 loops forever on a cut file.
@@ -13,6 +15,7 @@ parses it: ``gwyfile`` 0.3 loops forever on a cut file.
 
 from __future__ import annotations
 
+import re
 import struct
 from pathlib import Path
 
@@ -28,6 +31,23 @@ _MAGIC = b"GWYP"
 def _unit(field, key: str) -> tuple[str, float]:
     unit = field.get(key)
     return to_si(str(unit.get("unitstr", "")) if unit is not None else "")
+
+
+def _line_time(meta) -> float | None:
+    """One direction's line time, s, from a channel's metadata container (see the module notes)."""
+    if meta is None:
+        return None
+    entries = {str(k).strip().lower(): str(v) for k, v in meta.items()}
+    for keys, per_direction in ((("time/line", "line time"), True), (("scan rate", "scanrate"), False)):
+        for key in keys:
+            match = re.match(r"\s*([-+0-9.eE]+)\s*(\S*)", entries.get(key, ""))
+            if match is None:
+                continue
+            unit, factor = to_si(match.group(2) or ("s" if per_direction else "Hz"))
+            value = float(match.group(1)) * factor
+            if value > 0 and unit == ("s" if per_direction else "Hz"):
+                return value if per_direction else 1.0 / (2.0 * value)
+    return None
 
 
 def read_gwy_file(path: Path) -> AfmFile:
@@ -58,7 +78,8 @@ def read_gwy_file(path: Path) -> AfmFile:
         _, lateral = _unit(field, "si_unit_xy")
         data = np.array(field.data, dtype=np.float64) * factor
         size = (float(field.get("xreal", 1.0)) * lateral, float(field.get("yreal", 1.0)) * lateral)
-        channels.append(Channel(name, direction, quantity_of(name, unit), unit, data, size, None))
+        line_time = _line_time(container.get(f"/{i}/meta"))
+        channels.append(Channel(name, direction, quantity_of(name, unit), unit, data, size, line_time))
     if not channels:
         raise ReaderError(f"{path.name}: the .gwy file holds no data fields")
     return AfmFile(path, "gwy", tuple(channels), {"channels_in_file": len(channels)})
