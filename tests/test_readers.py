@@ -267,6 +267,13 @@ def test_nanoscope_scaling_directions_and_line_time(tmp_path):
     np.testing.assert_allclose(r.data, raw_r[::-1] * nm_per_lsb * 1e-9)  # Frame direction Down: rows reversed
     assert t.unit == "m" and t.size_m == pytest.approx((5e-6, 5e-6 * 16 / 20))
     assert t.line_time_s == pytest.approx(0.25)  # Scan Rate 2 Hz = 2 trace+retrace lines per second
+    raw = path.read_bytes()  # a layer whose Z scale pySPM cannot parse is skipped, the others are read
+    cut = raw.rindex(b"\\@2:Z scale: V [Sens. Zsens]")
+    bad = b"\\@2:Z scale: unreadable-scal"
+    path.write_bytes(raw[:cut] + bad + raw[cut + len(bad):])
+    afm = read_afm_file(path)
+    assert [c.name for c in afm.channels] == ["Height", "Height"] and afm.metadata["skipped_layers"]
+    np.testing.assert_array_equal(afm.channels[1].data, r.data)
 
 
 def test_npz_run_images_and_plain_pair(tmp_path):

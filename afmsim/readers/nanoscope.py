@@ -73,7 +73,7 @@ def read_nanoscope(path: Path) -> AfmFile:
     except (ValueError, ZeroDivisionError, IndexError):
         line_time = None
     down = (_header_value(header, "Frame direction") or "Up").lower().startswith("down")
-    channels = []
+    channels, skipped = [], []
     for i, layer in layers:
         title = layer[b"@2:Image Data"][0].decode("latin-1")
         quoted = re.search(r'"([^"]*)"', title)
@@ -81,8 +81,9 @@ def read_nanoscope(path: Path) -> AfmFile:
         retrace = layer.get(b"Line Direction", [b"Trace"])[0].strip().lower() == b"retrace"
         try:
             image = scan.get_channel(name, backward=retrace, lazy=False)
-        except Exception as error:  # pySPM raises bare Exception / re errors for what it cannot scale
-            raise ReaderError(f"{path.name}: cannot scale layer {i} '{name}' ({type(error).__name__})") from None
+        except Exception as error:  # pySPM raises bare Exception / re errors for a scale it cannot parse
+            skipped.append(f"{name} ({type(error).__name__})")
+            continue
         unit, factor = to_si(image.zscale)
         lines, samples = int(layer[b"Number of lines"][0]), int(layer[b"Samps/line"][0])
         data = np.asarray(image.pixels, dtype=np.float64).reshape(lines, samples) * factor
@@ -91,8 +92,10 @@ def read_nanoscope(path: Path) -> AfmFile:
         channels.append(Channel(name, "retrace" if retrace else "trace", quantity_of(name, unit), unit,
                                 data[::-1].copy() if down else data, size, line_time))
     if not channels:
-        raise ReaderError(f"{path.name}: no image layers (\\*Ciao image list) in the Nanoscope file")
+        raise ReaderError(f"{path.name}: no readable image layers (\\*Ciao image list) in the Nanoscope file"
+                          + (f"; unscalable: {', '.join(skipped)}" if skipped else ""))
     metadata = {key: value for key in ("Version", "Date", "Operating mode", "Scan Size", "Scan Rate", "Samps/line",
                                        "Lines", "Rotate Ang.") if (value := _header_value(header, key))}
-    metadata.update({"slow_scan": "down" if down else "up", "rows_reversed_to_acquisition_order": down})
+    metadata.update({"slow_scan": "down" if down else "up", "rows_reversed_to_acquisition_order": down,
+                     "skipped_layers": skipped})
     return AfmFile(path, "nanoscope", tuple(channels), metadata)
