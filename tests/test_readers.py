@@ -179,6 +179,8 @@ def test_real_nid_channel_override_and_refusals():
 
 @needs_real
 def test_real_nid_loads_as_image_record():
+    afm = read_afm_file(REAL / "circles.nid")
+    assert afm.metadata["scan_rotation_deg"] == -45 and "rotated -45°" in pick_height_pair(afm)[2]
     record = load_images(REAL / "circles.nid")
     assert record.shape == (256, 256) and record.scan_size_m == pytest.approx((50e-6, 50e-6))
     assert record.line_rate_hz == pytest.approx(0.25)  # 1 / (2 · 2 s)
@@ -240,7 +242,8 @@ def test_gwy_one_direction_or_no_height_is_refused(tmp_path):
 
 def test_ibw_asylum_layers_note_and_scan_down(tmp_path):
     trace, retrace = _grating()
-    note = {"FastScanSize": 3.2e-7, "SlowScanSize": 2.4e-7, "ScanRate": 2.5, "ScanDown": 1, "ImagingMode": "AC Mode"}
+    note = {"FastScanSize": 3.2e-7, "SlowScanSize": 2.4e-7, "ScanRate": 2.5, "ScanDown": 1, "ImagingMode": "AC Mode",
+            "ScanAngle": 90}
     path = _write_ibw(tmp_path / "asylum.ibw", {"HeightTrace": trace, "HeightRetrace": retrace,
                                                 "ZSensorTrace": trace, "ZSensorRetrace": retrace,
                                                 "PhaseTrace": trace * 1e9}, note)
@@ -252,6 +255,7 @@ def test_ibw_asylum_layers_note_and_scan_down(tmp_path):
     assert t.size_m == pytest.approx((3.2e-7, 2.4e-7)) and t.line_time_s == pytest.approx(0.2)  # 1/(2·2.5 Hz)
     np.testing.assert_allclose(t.data, trace[::-1], rtol=1e-6)  # ScanDown: rows reversed to scan order
     assert afm.channels[4].quantity == "phase" and afm.channels[4].unit == "deg"
+    assert afm.metadata["scan_rotation_deg"] == 90 and "rotated 90°" in picked
 
 
 def test_nanoscope_scaling_directions_and_line_time(tmp_path):

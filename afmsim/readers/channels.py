@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Channel", "AfmFile", "ReaderError", "quantity_of", "split_direction", "to_si",
+__all__ = ["Channel", "AfmFile", "ReaderError", "quantity_of", "split_direction", "to_si", "leading_number",
            "TRACE_DIRECTIONS", "RETRACE_DIRECTIONS"]
 
 TRACE_DIRECTIONS = ("forward", "trace")
@@ -104,6 +104,15 @@ def to_si(unit: str) -> tuple[str, float]:
     if len(text) >= 2 and text[0] in _PREFIX and text[1:] in _BASE:
         return _BASE[text[1:]], _PREFIX[text[0]]
     return text, 1.0
+
+
+def leading_number(text) -> float | None:
+    """The number a header value starts with (``"-45 °"`` → -45.0), or None."""
+    match = re.match(r"\s*([-+]?[0-9.]+(?:[eE][-+]?\d+)?)", str(text or ""))
+    try:
+        return float(match.group(1)) if match else None
+    except ValueError:
+        return None
 
 
 # --- names ---------------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .channels import AfmFile, Channel, ReaderError, quantity_of, split_direction, to_si
+from .channels import AfmFile, Channel, ReaderError, leading_number, quantity_of, split_direction, to_si
 
 __all__ = ["read_ibw"]
 
@@ -84,5 +84,6 @@ def read_ibw(path: Path) -> AfmFile:
                                 line_time))
     metadata = {k: note[k] for k in ("ImagingMode", "ScanAngle", "ScanRate", "ScanLines", "ScanPoints",
                                      "FastScanSize", "SlowScanSize", "Date", "Time") if k in note}
-    metadata.update({"slow_scan": "down" if down else "up", "rows_reversed_to_acquisition_order": down})
+    metadata.update({"slow_scan": "down" if down else "up", "rows_reversed_to_acquisition_order": down,
+                     "scan_rotation_deg": leading_number(note.get("ScanAngle"))})
     return AfmFile(path, "ibw", tuple(channels), metadata)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .channels import AfmFile, Channel, ReaderError, quantity_of, to_si
+from .channels import AfmFile, Channel, ReaderError, leading_number, quantity_of, to_si
 
 __all__ = ["read_nanoscope", "is_nanoscope_suffix"]
 
@@ -97,5 +97,6 @@ def read_nanoscope(path: Path) -> AfmFile:
     metadata = {key: value for key in ("Version", "Date", "Operating mode", "Scan Size", "Scan Rate", "Samps/line",
                                        "Lines", "Rotate Ang.") if (value := _header_value(header, key))}
     metadata.update({"slow_scan": "down" if down else "up", "rows_reversed_to_acquisition_order": down,
+                     "scan_rotation_deg": leading_number(_header_value(header, "Rotate Ang.")),
                      "skipped_layers": skipped})
     return AfmFile(path, "nanoscope", tuple(channels), metadata)

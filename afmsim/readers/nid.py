@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .channels import AfmFile, Channel, ReaderError, quantity_of, to_si
+from .channels import AfmFile, Channel, ReaderError, leading_number, quantity_of, to_si
 
 __all__ = ["read_nid"]
 
@@ -143,5 +143,6 @@ def read_nid(path: Path) -> AfmFile:
         raise ReaderError(f"{path.name}: no image channels (only spectroscopy or empty groups)")
     metadata = {k: v for k, v in info.items() if v and not set(v) <= {"-"}}
     metadata.update({"slow_scan": "down" if down else "up", "rows_reversed_to_acquisition_order": down,
+                     "scan_rotation_deg": leading_number(info.get("Rotation")),
                      "line_time_source": "ScanTime" if _seconds(imaging.get("ScanTime")) else "Time/Line"})
     return AfmFile(path, "nid", tuple(channels), metadata)

@@ -88,5 +88,7 @@ def pick_height_pair(afm: AfmFile, channel: str | None = None) -> tuple[Channel,
                           f"{trace.shape} vs {retrace.shape}")
     others = [n for n in pairs if n != chosen and _rank(next(iter(pairs[n].values()))) is not None]
     also = f"; other height channels: {', '.join(others)}" if others else ""
+    rotation = afm.metadata.get("scan_rotation_deg")
+    turned = f"; scan frame rotated {rotation:g}° from the stage axes" if rotation else ""
     return trace, retrace, (f"{label}: picked '{chosen}' {trace.direction}/{retrace.direction} ({reason}{also}), "
-                            f"{trace.shape[0]}×{trace.shape[1]} px")
+                            f"{trace.shape[0]}×{trace.shape[1]} px{turned}")
