@@ -50,7 +50,7 @@ class ToyFront(Front):
 def _diagnose(x):
     front = ToyFront(x)
     att = attribute(front, ["drift"], SIGMA)
-    out = conclude(front, att, SIGMA)
+    out = conclude(front, att, SIGMA, ["drift"])
     rep = {**out, "baseline": {"gap_to_noise": out["baseline_gap"]["gap_to_noise"]}}
     return out, verdict_text(rep, lambda w: f"early share {w['time']['early']['share']:.0%}")
 

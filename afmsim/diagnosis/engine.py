@@ -9,7 +9,8 @@ candidates and its plots through the small :class:`Front` interface; the engine 
    order), repeated while one is significant (at most ``Rules.max_effects``);
 2. the significance test (:func:`significance`);
 3. plausibility: an accepted effect whose fitted parameter lies outside its physical range
-   (:mod:`.plausible`) is *implausible* — it absorbs another mismatch and is not a finding;
+   (:mod:`.plausible`) is *implausible* — it absorbs another mismatch and is not a finding; the
+   attribution is run again without it, and what that run accepts are the findings;
 4. the status (:func:`conclude`), from the held-out RMS gap relative to the sensor-noise floor σ,
    ``gap_to_noise = rms_gap / σ``, with ``HONEST_FACTOR`` = 2:
 
@@ -211,28 +212,37 @@ def _within(gap: dict) -> bool:
     return gap["gap_to_noise"] is not None and gap["gap_to_noise"] <= HONEST_FACTOR
 
 
-def conclude(front: Front, att: Attribution, sigma: float) -> dict:
+def _flags(att: Attribution) -> list[dict]:
+    return [f for c in att.accepted for f in implausible(c, att.evaluations[c]["params"])]
+
+
+def conclude(front: Front, att: Attribution, sigma: float, candidates, *, rules: Rules = Rules()) -> dict:
     """Status, implausible flags, final gap and the unexplained remainder (report entries).
 
     Returns ``{"status", "verdict", "findings", "implausible", "baseline_gap", "final",
-    "unexplained"}``: ``verdict`` lists every accepted effect, ``findings`` those with plausible
-    parameters; the status and the remainder are those of the model with the findings only
-    (refitted when an implausible effect is set aside).
+    "unexplained"}``. ``verdict`` lists every effect ``att`` accepted. An accepted effect with an
+    implausible parameter is no candidate for the explanation: the attribution is run again
+    without it (repeatedly, while the new run accepts another implausible one), and what that run
+    accepts are the ``findings``; the status and the remainder are those of its model
+    (``final.findings_only`` when it differs from ``final``).
     """
     rms_base = rms(front.heldout_residual(att.baseline))
     base_gap = _gap(front, att.baseline, sigma, rms_base)
-    flags = [f for c in att.accepted for f in implausible(c, att.evaluations[c]["params"])]
+    flags, kept_att, excluded = _flags(att), att, set()
     for c in att.accepted:
         att.evaluations[c]["plausible"] = not any(f["effect"] == c for f in flags)
-    findings = tuple(c for c in att.accepted if att.evaluations[c]["plausible"])
+    new = flags
+    while new:
+        excluded |= {f["effect"] for f in new}
+        kept_att = attribute(front, [c for c in candidates if c not in excluded], sigma, modelled=att.modelled,
+                             rules=rules, baseline=att.baseline)
+        new = _flags(kept_att)
+        flags += new
+    findings = kept_att.accepted
+    for c in att.accepted:
+        att.evaluations[c]["finding"] = c in findings
     final = _gap(front, att.final, sigma, rms_base)
-    if findings == att.accepted:
-        kept_fit, kept = att.final, final
-    elif findings:
-        kept_fit = front.fit(att.modelled + findings, att.baseline)
-        kept = _gap(front, kept_fit, sigma, rms_base)
-    else:
-        kept_fit, kept = att.baseline, base_gap
+    kept = _gap(front, kept_att.final, sigma, rms_base)
     if findings:
         status = "explained" if _within(kept) else "partly_explained"
     else:
@@ -242,10 +252,11 @@ def conclude(front: Front, att: Attribution, sigma: float) -> dict:
     unexplained = {"effects_kept": list(findings), "rms_gap": kept["rms_gap"], "gap_to_noise": kept["gap_to_noise"],
                    "share_left": round(kept["rms_gap"] / rms_base, 4) if rms_base > 0 else 0.0,
                    "excess_share_left": round(max(ms_left, 0.0) / ms_base, 4) if ms_base > 0 else 0.0,
-                   "where": front.localise(kept_fit)}
+                   "where": front.localise(kept_att.final)}
     if flags:
         final["findings_only"] = {"effects": list(findings), "rms_gap": kept["rms_gap"],
-                                  "gap_to_noise": kept["gap_to_noise"]}
+                                  "gap_to_noise": kept["gap_to_noise"],
+                                  "params": {c: kept_att.evaluations[c]["params"] for c in findings}}
     return {"status": status, "verdict": list(att.accepted), "findings": list(findings), "implausible": flags,
             "baseline_gap": base_gap, "final": final, "unexplained": unexplained}
 
@@ -263,6 +274,8 @@ def effect_lines(effects: list[dict]) -> list[str]:
                         if key in e)
         if e.get("plausible") is False:
             notes += "  [IMPLAUSIBLE value]"
+        elif e.get("finding") is False:
+            notes += "  [not significant without the implausible terms]"
         lines.append(f"  {e['name']:<15} shrink {e['heldout_shrink']:+.1%}  ΔBIC {e['test']['delta_bic']:+.1f}  "
                      f"{'SIGNIFICANT' if e['significant'] else 'not significant'}  {_fmt(e['params'])}{notes}")
     return lines

@@ -1,8 +1,9 @@
 """Forward models voltage → displacement that are linear in their parameters, and the candidate effects.
 
 Baseline (default, ``kind="preisach"``): a smoothed-relay Preisach grid on the *recorded* voltage
-range (bipolar or not, any unit scale) — ``x = b0 + b1·v + Σ μ_ij s_ij(v)`` with μ ≥ 0, solved by
-bounded linear least squares (:func:`scipy.optimize.lsq_linear`). ``kind="symmetric"`` uses play
+range (bipolar or not, any unit scale) plus one level below it (relays that, once on, no recorded
+voltage switches off) — ``x = b0 + b1·v + Σ μ_ij s_ij(v)`` with μ ≥ 0, solved by bounded linear
+least squares (:func:`scipy.optimize.lsq_linear`). ``kind="symmetric"`` uses play
 operators instead (a Prandtl–Ishlinskii model, centrally symmetric loops); only then is the
 ``asymmetry`` candidate offered.
 
@@ -176,7 +177,10 @@ class Design:
 
     def hyst(self, kind: str) -> np.ndarray:
         if kind not in self._hyst:
-            f = relay_features(self.vc, self.v_lo, self.v_hi) if kind == "preisach" else \
+            # one extra level below the recorded range: relays whose down-threshold no recorded voltage
+            # reaches (once on, never off: the Preisach plane extends beyond the drive)
+            pad = (self.v_hi - self.v_lo) / N_LEVELS
+            f = relay_features(self.vc, self.v_lo - pad, self.v_hi, N_LEVELS + 1) if kind == "preisach" else \
                 play_features(self.vc, self.v_lo, self.v_hi)
             self._hyst[kind] = f
         return self._hyst[kind]
