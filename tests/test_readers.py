@@ -188,13 +188,14 @@ def test_real_nid_loads_as_image_record():
 
 
 @needs_real
-@pytest.mark.parametrize("cut", [0.5, "10 bytes"])
-def test_truncated_real_nid_is_one_line(tmp_path, cut):
+@pytest.mark.parametrize("change, message", [("half", "truncated"), ("10 bytes less", "truncated"),
+                                             ("10 bytes more", "bytes more after")])
+def test_cut_or_padded_real_nid_is_one_line(tmp_path, change, message):
     raw = (REAL / "circles.nid").read_bytes()
-    short = tmp_path / "circles.nid"
-    short.write_bytes(raw[:len(raw) // 2] if cut == 0.5 else raw[:-10])
-    with pytest.raises(ReaderError, match="truncated") as info:
-        read_afm_file(short)
+    changed = tmp_path / "circles.nid"
+    changed.write_bytes({"half": raw[:len(raw) // 2], "10 bytes less": raw[:-10], "10 bytes more": raw + bytes(10)}[change])
+    with pytest.raises(ReaderError, match=message) as info:
+        read_afm_file(changed)
     assert "\n" not in str(info.value)
 
 

@@ -5,7 +5,7 @@ this module adds what it leaves out:
 
 * **Validation**: the header must start with ``[DataSet]`` and end in ``#!``, and the data block
   after ``#!`` must hold exactly the bytes the header promises (``nsfopen`` reads them from the file's
-  end, so a cut file would otherwise be read as header text).
+  end, so a cut file would otherwise be read as header text; all six bundled files match exactly).
 * **Line order**: Nanosurf stores line ``k`` at height ``y = k·Δy`` whatever the slow direction;
   ``CurLine`` (the last line scanned) is ``Lines−1`` when ``Scan direction=Up`` and ``0`` when
   ``Down`` in every bundled file. A ``Down`` scan's rows are reversed, so row 0 is the first line
@@ -110,6 +110,9 @@ def read_nid(path: Path) -> AfmFile:
     if stored < promised:
         raise ReaderError(f"{path.name}: truncated Nanosurf file (data block {stored} bytes, header promises "
                           f"{promised})")
+    if stored > promised:  # nsfopen reads the data from the file's end, Gwyddion from '#!': they would disagree
+        raise ReaderError(f"{path.name}: {stored - promised} bytes more after '#!' than the header's channels "
+                          "hold; cannot tell where the data start")
     if not bits <= {16, 32} or len(bits) > 1:
         raise ReaderError(f"{path.name}: SaveBits {sorted(bits)} not supported (16 or 32, the same for all channels)")
     from NSFopen.read import nid_read
@@ -132,7 +135,7 @@ def read_nid(path: Path) -> AfmFile:
         key = name if (frame, name) not in seen else name + "2"  # nsfopen's naming of a repeated channel
         seen.add((frame, name))
         data = images.get(group, {}).get(key)
-        if data is None:
+        if data is None or np.ndim(data) != 2:
             continue
         unit, factor = to_si(section.get("Dim2Unit", ""))
         data = np.asarray(data, dtype=np.float64) * factor
