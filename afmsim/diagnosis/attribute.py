@@ -101,7 +101,7 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
     r_base = front.residual(base)
     avail = [c for c in (list(candidates) if candidates is not None else _available(rec, baseline)) if c not in modelled]
     att = attribute(front, avail, sigma, modelled=modelled, rules=RULES, baseline=base)
-    outcome = conclude(front, att, sigma)
+    outcome = conclude(front, att, sigma, avail, rules=RULES)
     report = {
         "record": {"source": rec.source, "samples": n, "sample_interval_s": rec.dt, "decimation": rec.decimation,
                    "duration_s": float(rec.t[-1] - rec.t[0]), "train_fraction": train_fraction,

@@ -198,7 +198,7 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
     if candidates is not None:
         avail = [c for c in candidates if c in avail]
     att = attribute(front, avail, sigma, modelled=modelled, rules=RULES, baseline=base)
-    outcome = conclude(front, att, sigma)
+    outcome = conclude(front, att, sigma, avail, rules=RULES)
     block = max(2, record.shape[0] // 16)
     report = {
         "images": {"source": record.source, "lines": record.shape[0], "pixels": record.shape[1],
