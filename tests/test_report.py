@@ -220,3 +220,18 @@ def test_gwy_holds_every_experiment_with_line_rate_and_scenario(tmp_path):
     meta = GwyObject.fromfile(str(tmp_path / "images.gwy"))["/4/meta"]
     assert float(meta["line rate (Hz)"]) == 2.0 and meta["scenario"] == "two"
     assert "period_um: 5.0" in meta["scenario (YAML)"]
+
+
+def test_key_renders_share_one_exaggeration_and_the_substrate_reference(run_dir):
+    from afmsim.report.renders import load_run_arrays, render_jobs
+
+    _, images, truth = load_run_arrays(run_dir)
+    jobs = render_jobs(images, truth, None, run_dir / "unused", which="key", best="spi")
+    names = [args[1].name for _, args in jobs]
+    assert names == ["render_none_trace.png", "render_spi_trace.png", "render_sample.png"]
+    common = [args[3] for _, args in jobs]
+    assert len({c["z_exaggeration"] for c in common}) == 1 and len({c["z_range_m"] for c in common}) == 1
+    for _, args in jobs:                       # every map drawn above its own substrate level
+        z = args[0].z
+        assert abs(np.median(z[z < z.mean()])) < 1e-12
+    assert len(render_jobs(images, truth, None, run_dir, which="all")) == 2 * len(images) + 1
