@@ -216,10 +216,6 @@ def _scan_one(name: str, records: dict, rng: np.random.Generator) -> ScanImages:
                    actual_x_retrace=np.ascontiguousarray(images.actual_x_retrace))
 
 
-def _score_one(images: ScanImages, kind: str) -> tuple[dict, list[str]]:
-    return _score(images, kind)
-
-
 @single_blas_thread
 def run_scenario(scenario: Scenario, progress=None, *, workers: int = 1) -> ScenarioResult:
     """Run every experiment of a scenario.
@@ -263,7 +259,7 @@ def run_scenario(scenario: Scenario, progress=None, *, workers: int = 1) -> Scen
                      z_stage=z_stage, z_feedback=z_feedback) as executor:
         scans = ordered_map(executor, _scan_one, [task[1:] for task in tasks], report("scan"))
         scanned = time.perf_counter()
-        scored = ordered_map(executor, _score_one, [(images, scenario.sample.kind) for images in scans],
+        scored = ordered_map(executor, _score, [(images, scenario.sample.kind) for images in scans],
                              report("metrics"))
     for (k, name, *_), images, (scores, notes) in zip(tasks, scans, scored):
         if k == 0:
