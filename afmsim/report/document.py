@@ -127,12 +127,12 @@ def reading(metrics: dict, scenario) -> list[str]:
     best = best_controller(metrics)
     if best is not None:
         parts = [f"**Best compensation: {best}**, NSL2 {nsl2[best]:,.0f}"]
-        if nsl2.get("none"):
+        if nsl2.get("none") and nsl2[best] > 0:
             parts.append(f"{nsl2['none'] / nsl2[best]:.1f}× lower than without compensation ({nsl2['none']:,.0f})")
         if nsl2.get("ideal"):
             parts.append(f"{nsl2[best] / nsl2['ideal']:.1f}× the hysteresis-free floor (ideal, {nsl2['ideal']:,.0f})")
         out.append(", ".join(parts) + ".")
-    if "e_D" in metrics and metrics["e_D"] is not None:
+    if isinstance(metrics.get("e_D"), (int, float)) and math.isfinite(metrics["e_D"]):
         e = metrics["e_D"]
         verdict = (f"DIAPI beats SPI: e_D = {e:+.0%}" if e > 0 else
                    f"**DIAPI is worse than SPI here**: e_D = {e:+.0%} (DIAPI's NSL2 {nsl2['diapi']:,.0f} vs SPI's "
