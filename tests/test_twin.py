@@ -185,3 +185,15 @@ def test_scan_wider_than_the_default_stage_is_predicted_on_the_twin_only():
     assert np.isfinite(prediction["rms_error_m"])
     assert prediction["default_stage"]["rms_error_m"] is None
     assert "travel" in prediction["default_stage"]["not_predicted"]
+
+
+def test_known_pitch_gives_scale_and_local_stretch():
+    """A 10-pixel-period grating drawn 5 % wider on the left half: period ≈ pitch, left window > 1 > right."""
+    x = np.arange(400, dtype=float)
+    phase = np.where(x < 200, x / 10.5, 200 / 10.5 + (x - 200) / 9.5)
+    trace = np.tile((np.sin(2 * np.pi * phase) > 0).astype(float) * 100e-9, (16, 1))
+    from afmsim.twin.calibrate_images import local_period_m
+
+    whole, local = local_period_m(trace, 1e-7, pitch_m=1e-6)
+    assert whole == pytest.approx(1e-6, rel=0.06)
+    assert local[0] > 1.03e-6 and local[-1] < 0.97e-6

@@ -114,22 +114,34 @@ def height_noise_m(image) -> float:
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
-def local_period_m(image, pixel_size_m: float, n_windows: int = 4) -> np.ndarray:
-    """Dominant period along x (m) per window, from the first side peak of the gradient's autocorrelation."""
+def _gradient_autocorrelation(g: np.ndarray) -> np.ndarray:
+    seg = g - g.mean(axis=1, keepdims=True)
+    spec = np.abs(np.fft.rfft(seg, n=2 * seg.shape[1], axis=1)) ** 2
+    # divided by the overlap at each lag: unbiased, so a short window's peak does not drift to shorter lags
+    return np.fft.irfft(spec.sum(axis=0))[: seg.shape[1]] / (seg.shape[1] - np.arange(seg.shape[1]))
+
+
+def _peak_lag(ac: np.ndarray, lo: float, hi: float) -> float:
+    """Sub-pixel lag (px) of the highest local maximum of ``ac`` in [lo, hi] px, NaN if none."""
+    k = np.arange(1, ac.size - 1)
+    inner = k[(ac[1:-1] > ac[:-2]) & (ac[1:-1] >= ac[2:]) & (k >= lo) & (k <= hi)]
+    if inner.size == 0:
+        return float("nan")
+    k = inner[np.argmax(ac[inner])]
+    left, mid, right = ac[k - 1], ac[k], ac[k + 1]
+    curvature = left - 2 * mid + right
+    return float(k + (0.5 * (left - right) / curvature if curvature < 0 else 0.0))
+
+
+def local_period_m(image, pixel_size_m: float, pitch_m: float, n_windows: int = 4) -> tuple[float, np.ndarray]:
+    """Period along x (m): of the whole image (strongest gradient-autocorrelation peak within ½–2× the
+    pitch), and per window (the peak within ±30 % of the whole image's)."""
     g = np.gradient(np.asarray(image, dtype=np.float64), axis=1)
+    whole = _peak_lag(_gradient_autocorrelation(g), 0.5 * pitch_m / pixel_size_m, 2 * pitch_m / pixel_size_m)
     edges = np.linspace(0, g.shape[1], n_windows + 1).round().astype(int)
-    periods = np.full(n_windows, np.nan)
-    for w, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
-        seg = g[:, a:b] - g[:, a:b].mean(axis=1, keepdims=True)
-        spec = np.abs(np.fft.rfft(seg, n=2 * seg.shape[1], axis=1)) ** 2
-        ac = np.fft.irfft(spec.sum(axis=0))[: seg.shape[1]]
-        inner = np.flatnonzero((ac[1:-1] > ac[:-2]) & (ac[1:-1] >= ac[2:]) & (ac[1:-1] > 0)) + 1
-        if inner.size:
-            k = inner[0]
-            lo, mid, hi = ac[k - 1], ac[k], ac[k + 1]
-            frac = 0.5 * (lo - hi) / (lo - 2 * mid + hi) if (lo - 2 * mid + hi) < 0 else 0.0
-            periods[w] = (k + frac) * pixel_size_m
-    return periods
+    local = np.array([_peak_lag(_gradient_autocorrelation(g[:, a:b]), 0.7 * whole, 1.3 * whole)
+                      for a, b in zip(edges[:-1], edges[1:])])
+    return whole * pixel_size_m, local * pixel_size_m
 
 
 JACOBIAN_STEPS = {"fast_axis.hysteretic_fraction": 0.01, "fast_axis.width_decay": 0.05, "fast_axis.skew": 0.05,
@@ -246,9 +258,16 @@ def calibrate_images(trace, retrace, scan: RealScan, *, start: Instrument | None
 
 
 def _absolute(trace, retrace, dx: float, pitch_m: float) -> dict:
-    """Local sensitivity of each scan direction from a known pitch: intended period / true pitch, per window."""
+    """The absolute scale of each scan direction against a known pitch, and how it varies across the field.
+
+    ``period_over_pitch`` is the whole image's period along x over the pitch (1 for a lattice axis
+    along x and a true scale; a rotated lattice shows its own projection); ``local_over_mean`` the
+    period per window (4) over the image's: > 1 where that direction stretches the image (the
+    stage moved less than intended), < 1 where it compresses it.
+    """
     out = {"pitch_m": pitch_m}
     for label, image in (("trace", trace), ("retrace", retrace)):
-        period = local_period_m(image, dx)
-        out[f"{label}_local_gain"] = (period / pitch_m).tolist()
+        whole, local = local_period_m(image, dx, pitch_m)
+        out[label] = {"period_m": whole, "period_over_pitch": whole / pitch_m, "local_period_m": local,
+                      "local_over_mean": local / whole}
     return out
