@@ -7,7 +7,7 @@ import os
 import subprocess
 import sys
 
-__all__ = ["rendering_available", "RenderingUnavailable"]
+__all__ = ["rendering_available", "start_rendering_probe", "RenderingUnavailable"]
 
 
 class RenderingUnavailable(RuntimeError):
@@ -38,9 +38,25 @@ print(f"PROBE-OK {window}; {renderer}", flush=True)
 """
 
 
+_PENDING: dict = {}
+
+
+def start_rendering_probe() -> None:
+    """Start the probe in the background, so that a later :func:`rendering_available` (in this
+    process) finds its answer ready instead of waiting a second or more for it. Idempotent."""
+    if "proc" in _PENDING or rendering_available.cache_info().currsize:
+        return
+    try:
+        _PENDING["proc"] = subprocess.Popen([sys.executable, "-c", _PROBE], stdout=subprocess.PIPE,
+                                            stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+    except OSError as exc:  # pragma: no cover - cannot start Python at all
+        _PENDING["error"] = f"could not start the rendering probe: {exc}"
+
+
 @functools.lru_cache(maxsize=1)
 def rendering_available(timeout: float = 120.0) -> tuple[bool, str]:
-    """Probe off-screen rendering in a fresh Python process.
+    """Probe off-screen rendering in a fresh Python process (the one :func:`start_rendering_probe`
+    started, if any).
 
     Returns
     -------
@@ -49,20 +65,23 @@ def rendering_available(timeout: float = 120.0) -> tuple[bool, str]:
         non-blank image, else ``(False, why)`` — import failure, crash (signal), time-out, or
         the tail of the child's stderr. The answer is cached for the process.
     """
+    start_rendering_probe()
+    if "error" in _PENDING:  # pragma: no cover
+        return False, _PENDING.pop("error")
+    proc = _PENDING.pop("proc")
     try:
-        proc = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True,
-                              timeout=timeout, env=dict(os.environ))
+        stdout, stderr = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
         return False, f"rendering probe timed out after {timeout:.0f} s"
-    except OSError as exc:  # pragma: no cover - cannot start Python at all
-        return False, f"could not start the rendering probe: {exc}"
-    for line in proc.stdout.splitlines():
+    for line in stdout.splitlines():
         if line.startswith("PROBE-OK"):
             return True, line[len("PROBE-OK "):]
     if proc.returncode < 0:
         what = f"rendering probe killed by signal {-proc.returncode} (GL stack crashed)"
     else:
         what = f"rendering probe failed (exit {proc.returncode})"
-    tail = (proc.stderr.strip() or proc.stdout.strip()).splitlines()[-3:]
+    tail = (stderr.strip() or stdout.strip()).splitlines()[-3:]
     hint = " — on Debian/Ubuntu install libegl1 and libgl1-mesa-dri"
     return False, what + (": " + " | ".join(tail) if tail else "") + hint

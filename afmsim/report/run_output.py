@@ -58,6 +58,10 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
     """
     if renders not in RENDER_CHOICES:
         raise ValueError(f"renders must be one of {', '.join(RENDER_CHOICES)}, got {renders!r}")
+    if renders != "none":
+        from afmsim.render.probe import start_rendering_probe
+
+        start_rendering_probe()  # its answer is read after the figures are queued
     started = time.perf_counter()
     folder = Path(folder)
     scenario, kind = result.scenario, result.scenario.sample.kind
@@ -81,11 +85,9 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
     ticker = _Ticker(progress)
     written, warnings = [folder / "metrics.json", folder / "scenario.yaml"], []
     with worker_pool(max(1, workers)) as executor:
-        # The rendering probe (a subprocess, about a second) runs on a worker while figures are drawn.
-        probe = executor.submit(render_unavailable) if executor is not None and renders != "none" else None
         figures = ordered_map(executor, _call, figure_jobs, ticker("figures", len(figure_jobs)), wait=False)
         written += _write_arrays(result, folder, scenario_yaml)
-        warning = None if renders == "none" else probe.result() if probe is not None else render_unavailable()
+        warning = None if renders == "none" else render_unavailable()
         views = []
         if warning:
             warnings.append(warning)
