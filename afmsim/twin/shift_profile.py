@@ -8,6 +8,10 @@ above a fraction of the image's typical line energy) and the match is clear (pea
 ≥ ``min_correlation``). The window's shift is the median over the counted lines; its standard error
 is 1.2533·(1.4826·MAD)/√n (the median's asymptotic error for a normal spread).
 
+A window holding features with different shifts reports the one that dominates its lines' best
+matches (not their mean): the profile is sampled at the features, and windows should be narrow
+against the profile's curvature.
+
 Sign: ``shift = x_retrace − x_trace`` of the same feature, so a retrace that shows features to the
 left gives a negative shift (the issue's convention).
 """
@@ -62,6 +66,25 @@ def _summarise(x_m, per_line) -> ShiftProfile:
     return ShiftProfile(np.asarray(x_m), shift, err, used, per_line)
 
 
+COMPETING_PEAK = 0.8
+"""A correlation peak at least this fraction of the highest competes; the one nearest the reference lag wins."""
+
+
+def _preferred_peak(curve: np.ndarray, reference: int) -> int:
+    """Index of the local maximum of ``curve`` nearest ``reference`` among those ≥ COMPETING_PEAK × the highest.
+
+    A sample periodic along x (a grating) correlates as well one period away: the reference (zero
+    lag for the whole image, the image's lag for a window) decides between such aliases.
+    """
+    finite = np.where(np.isfinite(curve), curve, -np.inf)
+    top = float(np.max(finite))
+    k = np.arange(1, finite.size - 1)
+    peaks = k[(finite[1:-1] >= finite[:-2]) & (finite[1:-1] >= finite[2:]) & (finite[1:-1] >= COMPETING_PEAK * top)]
+    if peaks.size == 0:
+        return int(np.argmax(finite))
+    return int(peaks[np.argmin(np.abs(peaks - reference))])
+
+
 def shift_profile(trace, retrace, pixel_size_m: float, n_windows: int = 8, max_shift_fraction: float = 0.2,
                   window_search_fraction: float = 0.1, line_search_fraction: float = 0.03,
                   min_correlation: float = 0.5) -> ShiftProfile:
@@ -72,8 +95,9 @@ def shift_profile(trace, retrace, pixel_size_m: float, n_windows: int = 8, max_s
     image's lag within ±``max_shift_fraction`` of the line; each window's correlation summed over
     its lines (a strip registration) gives the window's lag within ±``window_search_fraction`` of
     the line around it; each line's own peak is sought within ±``line_search_fraction`` (at least
-    3 pixels) around that. Searching near the whole image's lag keeps a periodic sample from
-    aliasing a window by one period.
+    3 pixels) around that. Where peaks compete (≥ :data:`COMPETING_PEAK` × the highest: a sample
+    periodic along x), the one nearest zero lag wins for the image, nearest the image's lag for a
+    window — shifts beyond half the sample's period cannot be told from aliases.
     """
     t = np.asarray(trace, dtype=np.float64)
     r = np.asarray(retrace, dtype=np.float64)
@@ -104,7 +128,7 @@ def shift_profile(trace, retrace, pixel_size_m: float, n_windows: int = 8, max_s
         return num / np.sqrt(np.maximum(e_t * e_c, 1e-300))
 
     whole = correlation(products.sum(axis=(0, 1)), energy_t.sum(), energy_c.sum(axis=(0, 1)))
-    image_lag = int(np.argmax(whole))
+    image_lag = _preferred_peak(whole, int(np.flatnonzero(lags == 0)[0]))
     window_reach = max(3, int(round(window_search_fraction * pixels)))
     line_reach = max(3, int(round(line_search_fraction * pixels)))
     index = np.arange(lags.size)
@@ -114,7 +138,7 @@ def shift_profile(trace, retrace, pixel_size_m: float, n_windows: int = 8, max_s
     for w, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
         strip = correlation(products[w].sum(axis=0), energy_t[w].sum(), energy_c[w].sum(axis=0))
         strip[np.abs(index - image_lag) > window_reach] = -np.inf
-        centre = int(np.argmax(strip))
+        centre = _preferred_peak(strip, image_lag)
         ncc = correlation(products[w], energy_t[w][:, None], energy_c[w])
         ncc[:, np.abs(index - centre) > line_reach] = -np.inf
         best = np.argmax(ncc, axis=1)
