@@ -21,8 +21,9 @@ What a trace/retrace pair constrains, and how it is fitted here:
 * **Height noise**: 1.4826·MAD of the second difference along x, / √6 (white noise).
 * **Slow axis**: the trace/retrace offset along y (whole-image registration) is reported; the
   slow axis' hysteresis is not constrained by one pair and stays at the default.
-* **Absolute nonlinearity** (``pitch_m`` given): the local period of the trace per window against
-  the known pitch gives the trace branch's local sensitivity; reported with its spread.
+* **Absolute scale** (``pitch_m`` given): each direction's period along x against the known
+  pitch, and its period per window over the image's (where that direction stretches or compresses
+  the field); reported in ``calibration.json``, not fitted into the twin.
 
 Everything else (drift, resonance, travel, where the image sits in the travel) is
 not constrained by one image pair and stays at afmsim's default, marked ``default``.
