@@ -357,9 +357,11 @@ def _ringing(layout: Layout, f0: float, zeta: float) -> np.ndarray:
 
 
 def _signatures(base: "_Problem", th, static, effect: str, s, sx, sy):
-    """Grid points of a new non-linear ``effect`` (log10 values) and, per point, the blocks of sample-level
-    signature columns whose free amplitudes a matched filter fits (see :func:`_scan`); ``static`` are
-    the current positions before any dynamics, ``s, sx, sy`` the surface and its gradient there."""
+    """Grid points of a new non-linear ``effect`` (log10 values) and a function giving, for point k, the
+    blocks of sample-level signature columns whose free amplitudes a matched filter fits (see
+    :func:`_scan`; made on demand: a 256 × 256 frame has ~0.5 M samples, hundreds of points);
+    ``static`` are the current positions before any dynamics, ``s, sx, sy`` the surface and its
+    gradient there."""
     d, vals = base.design, base.values(th)
     if effect == "dynamics":
         lo, hi = d.ranges["f0"]
@@ -371,18 +373,21 @@ def _signatures(base: "_Problem", th, static, effect: str, s, sx, sy):
         def blocks(point):
             x, y, _, _ = base._positions(th, dict(vals, f0=point[0], zeta=point[1]), np.arange(0), static)
             return [np.column_stack([sx * (x - x0), sy * (y - y0)]), _ringing(d.layout, *point) * gradients]
-        return [{"f0": np.log10(f), "zeta": np.log10(z)} for f, z in points], [blocks(pt) for pt in points]
+        return [{"f0": np.log10(f), "zeta": np.log10(z)} for f, z in points], lambda k: blocks(points[k])
     lo, hi = d.ranges[effect]
     values = np.geomspace(lo, hi, 16)
     x, y, _, _ = base._positions(th, vals, np.arange(0), static)
     if effect == "tip":
-        cols = [base.surface(dict(vals, tip=v)).sample(x, y, gradient=False)[0] - s for v in values]
+        def column(v):
+            return base.surface(dict(vals, tip=v)).sample(x, y, gradient=False)[0] - s
     else:  # z_feedback: the height change of the loop itself, at the current surface heights
         now = base._loop(vals)
         h0 = s if now is None else now.run(s, None, d.layout.dt)[0]
         z = d.z_loop or ZLoop(hi)
-        cols = [ZLoop(v, z.kp, z.setpoint_m).run(s, None, d.layout.dt)[0] - h0 for v in values]
-    return [{effect: np.log10(v)} for v in values], [[c[:, None]] for c in cols]
+
+        def column(v):
+            return ZLoop(v, z.kp, z.setpoint_m).run(s, None, d.layout.dt)[0] - h0
+    return [{effect: np.log10(v)} for v in values], lambda k: [column(values[k])[:, None]]
 
 
 def _null_point(design: ImageDesign, effect: str) -> dict:
@@ -425,7 +430,7 @@ def _scan(prob: "_Problem", theta, effect: str, keep: int) -> list[dict]:
     loop, g = base._loop(vals), th[base.p]
     scores = np.full((len(points), 2), np.inf)
     for start in range(0, len(points), 16):
-        chunk = blocks[start:start + 16]
+        chunk = [blocks(k) for k in range(start, min(start + 16, len(points)))]
         cols = np.hstack([b for point in chunk for b in point])
         dh = cols if (loop is None or effect == "z_feedback") else loop.run(s, cols, d.layout.dt)[1]
         jk = d.rows(prob.lines, *d.layout.images(g * dh))
