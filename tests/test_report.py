@@ -28,7 +28,7 @@ def run_dir(tmp_path_factory):
                                "experiments": 1, "controllers": CONTROLLERS})
     result = run_scenario(scenario)
     folder = tmp_path_factory.mktemp("run")
-    write_run(result, folder, renders="all")
+    write_run(result, folder, renders="all", workers=2)
     return folder
 
 
