@@ -133,6 +133,12 @@ def test_cli_bad_input_exit_2_nothing_written(tmp_path):
     result = runner.invoke(app, ["calibrate", "--measured", str(tmp_path / "x.nid"), "--pitch-um", "5",
                                  "--scenario", str(bad), "--out", str(out)])
     assert result.exit_code == 2 and not out.exists()
+    record = tmp_path / "loop.csv"
+    record.write_text("t_s,v_V,x_m\n0,0,0\n")
+    result = runner.invoke(app, ["calibrate", "--measured", str(record), "--pitch-um", "5", "--out", str(out)])
+    assert result.exit_code == 2 and "loop record" in result.output and not out.exists()
+    result = runner.invoke(app, ["calibrate", "--measured", str(record), "--out", str(out)])
+    assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1 and not out.exists()
 
 
 def test_scenario_runs_on_the_twin(tmp_path):

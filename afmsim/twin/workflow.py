@@ -64,6 +64,8 @@ def calibrate(measured, out, *, pitch_m: float | None = None, scenario=None, cha
         raise ValueError("give --pitch-um or --scenario, not both")
     if pitch_m is not None and not (0 < pitch_m < 1e-3):
         raise ValueError(f"--pitch-um must be in (0, 1000) µm, got {pitch_m * 1e6:g}")
+    if (pitch_m is not None or scenario is not None) and _is_loop_record(measured):
+        raise ValueError("--pitch-um/--scenario apply to image pairs, not to a loop record")
     if scenario is not None:
         pitch_m = pitch_from_scenario(scenario)
     out = Path(out)
