@@ -132,7 +132,8 @@ def test_diagnosis_finds_a_slow_z_loop(z_case, tmp_path):
     json.dumps(report)
     assert report["images"]["reference"] == "scenario" and report["baseline"]["unit"] == "m"
     assert {"direction", "axis", "features", "position", "time"} <= set(report["where"])
-    assert {e["name"] for e in report["effects"]} == {"creep", "drift", "dynamics", "cross_coupling", "tip", "z_feedback"}
+    assert {e["name"] for e in report["effects"]} == {"creep", "drift", "dynamics", "cross_coupling", "tip", "z_feedback",
+                                                        "z_bow"}
     for e in report["effects"]:
         assert {"name", "params", "heldout_shrink", "significant"} <= set(e)
     assert report["verdict"][:1] == ["z_feedback"]
@@ -146,7 +147,7 @@ def test_trace_reference_says_what_it_cannot_see(z_case):
     report, _ = diagnose_images(z_case["measured"])
     assert report["images"]["reference"] == "trace"
     assert set(report["not_identifiable"]) == {"drift", "cross_coupling", "tip"}
-    assert {e["name"] for e in report["effects"]} <= {"creep", "dynamics", "z_feedback"}
+    assert {e["name"] for e in report["effects"]} <= {"creep", "dynamics", "z_feedback", "z_bow"}
     assert report["baseline"]["rms_gap"] > 0
 
 

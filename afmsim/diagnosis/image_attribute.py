@@ -39,6 +39,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from numpy.polynomial import legendre
 
 from afmsim.reproducible import single_blas_thread
 
@@ -50,10 +51,10 @@ from .image_reference import scenario_reference
 from .images import ImageRecord, load_images
 from .scenario_effects import as_scenario, modelled_effects
 
-__all__ = ["diagnose_images", "diagnose_image_record", "build_design", "split_lines", "effect_params",
+__all__ = ["diagnose_images", "diagnose_image_record", "build_design", "split_lines", "effect_params", "sensor_noise",
            "IMAGE_CANDIDATES", "ImageFront"]
 
-IMAGE_CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "tip", "z_feedback", "asymmetry")
+IMAGE_CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "tip", "z_feedback", "z_bow", "asymmetry")
 #: a candidate whose signature the model already has to 95 % is not fitted; an effect must remove
 #: ≥ 0.5 % of the baseline's held-out mean square and ≥ 20 % of the current held-out RMS gap; ΔBIC
 #: within 2 of the best is equal evidence (the earlier canonical name is taken)
@@ -118,6 +119,8 @@ def effect_params(design: ImageDesign, fit: ImageFit, effect: str) -> dict:
         return {"coefficient": fit.coefficient("cross_coupling", "coefficient")}
     if effect == "asymmetry":
         return {"terms_m": {c.name: float(v) for c, v in zip(fit.columns, fit.theta) if c.group == "asymmetry"}}
+    if effect == "z_bow":
+        return bow_params(design, fit)
     if effect == "dynamics":
         f0, zeta = fit.hyper["dynamics"]
         return {"resonance_hz": float(f0), "damping_ratio": float(zeta)}
@@ -130,6 +133,48 @@ def effect_params(design: ImageDesign, fit: ImageFit, effect: str) -> dict:
         known = design.tip_radius_m or 0.0
         return {"apex_radius_m": known + extra, "extra_paraboloid_radius_m": extra, "known_apex_radius_m": known}
     return {}
+
+
+def bow_params(design: ImageDesign, fit: ImageFit) -> dict:
+    """``z_bow`` in SI: peak-to-valley (m) of the retrace − trace height background along the line (and,
+    scenario reference, of the background both directions share), and that difference as a share of
+    the median Z range a measured trace line sweeps (the Z-piezo loop's width is a share of it)."""
+    u = np.linspace(-1.0, 1.0, 201)
+    coef = {c.name: float(v) for c, v in zip(fit.columns, fit.theta) if c.group == "z_bow"}
+    order = max(int(n.rsplit("P", 1)[1]) for n in coef)
+
+    def profile(prefix: str, factor: float) -> np.ndarray:
+        return factor * legendre.legval(u, [0.0] + [coef.get(f"{prefix}_P{k}", 0.0) for k in range(1, order + 1)])
+
+    diff = profile("retrace", 1.0) if design.kind == "trace" else profile("width", 2.0)
+    lines = design.record.trace[design.train | design.held]
+    out = {"difference_ptp_m": float(np.ptp(diff)),
+           "share_of_line_z_range": float(np.ptp(diff) / max(float(np.median(np.ptp(lines, axis=1))), 1e-300))}
+    if design.kind != "trace":
+        out["common_ptp_m"] = float(np.ptp(profile("mean", 1.0)))
+    return out
+
+
+SENSOR_WINDOW = 32  # pixels per window of the sensor-noise estimate
+SENSOR_QUANTILE = 0.1  # the flattest tenth of the windows
+
+
+def sensor_noise(record: ImageRecord, lines: np.ndarray) -> float:
+    """White height noise (m) of the instrument, from the measured images themselves: the robust σ of
+    second differences along the line (σ_Δ² = √6·σ) in windows of ``SENSOR_WINDOW`` pixels, the
+    ``SENSOR_QUANTILE`` quantile over the windows of both directions (the flattest parts: edges and
+    pixel-scale roughness inflate the others). Independent of any model. Biased low for pure white
+    noise (a 32-pixel window's σ scatters by ~20 %), so gaps against it read conservatively high."""
+    sig = []
+    for img in (record.trace[lines], record.retrace[lines]):
+        d2 = np.diff(img, 2, axis=1)
+        n = d2.shape[1] // SENSOR_WINDOW * SENSOR_WINDOW
+        if n == 0:
+            return float("nan")
+        w = d2[:, :n].reshape(d2.shape[0], -1, SENSOR_WINDOW)
+        mad = np.median(np.abs(w - np.median(w, axis=2, keepdims=True)), axis=2)
+        sig.append((1.4826 * mad / np.sqrt(6.0)).ravel())
+    return float(np.quantile(np.concatenate(sig), SENSOR_QUANTILE))
 
 
 def _held_rows(design: ImageDesign, fit: ImageFit, lines) -> np.ndarray:
@@ -161,7 +206,8 @@ class ImageFront(Front):
 
     def localise(self, fitted: ImageFit) -> dict:
         d = self.design
-        return localise_image(*_images_residual(d, fitted), fitted.trace, fitted.retrace, d.record.trace, d.held,
+        return localise_image(*_images_residual(d, fitted), fitted.trace, fitted.retrace,
+                              (d.record.trace, d.record.retrace), d.held,
                               with_trace=d.kind == "scenario")
 
     def redundancy(self, fitted: ImageFit, effect: str) -> float:
@@ -194,6 +240,7 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
     front = ImageFront(design)
     base = front.fit(modelled)
     sigma = noise_floor(_held_rows(design, base, design.train))
+    sensor = sensor_noise(record, design.train)
     avail, skipped = _candidates(design, modelled)
     if candidates is not None:
         avail = [c for c in candidates if c in avail]
@@ -214,6 +261,7 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
                      "modelled": list(modelled), "rms_gap": rms(front.heldout_residual(base)), "unit": "m",
                      "gap_to_noise": outcome["baseline_gap"]["gap_to_noise"],
                      "train_rms": rms(_held_rows(design, base, design.train)), "noise_floor": sigma,
+                     "sensor_noise": sensor, "gap_to_sensor_noise": _ratio(rms(front.heldout_residual(base)), sensor),
                      "height_range": float(np.ptp(record.trace)), "params": _baseline_params(design, base)},
         "where": front.localise(base),
         "effects": [att.evaluations[c] for c in avail if c in att.evaluations],
@@ -224,12 +272,17 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
         "final": outcome["final"],
         "unexplained": outcome["unexplained"],
     }
+    report["final"]["gap_to_sensor_noise"] = _ratio(report["final"]["rms_gap"], sensor)
     summary = image_summary(report)
     if figure_path is not None:
         plot_image_diagnosis(design, base, att.final, figure_path,
                              title=f"{report['status']}: " + (", ".join(outcome["verdict"]) or "no effect named"))
         report["figure"] = str(figure_path)
     return report, summary, {"design": design, "baseline": base, "final": att.final}
+
+
+def _ratio(gap: float, sigma: float):
+    return round(gap / sigma, 3) if sigma > 0 else None
 
 
 def _images_residual(design: ImageDesign, fit: ImageFit):
@@ -268,6 +321,12 @@ def image_summary(rep: dict) -> str:
     lines = [f"Baseline ({b['model']}): held-out RMS gap {b['rms_gap'] * 1e9:.2f} nm "
              f"({100 * b['rms_gap'] / (b['height_range'] or 1):.2f} % of the height range; noise floor "
              f"{b['noise_floor'] * 1e9:.2f} nm, gap {ratio_text(b['gap_to_noise'])} the noise)."]
+    if b["sensor_noise"] > 0 and b["noise_floor"] > 2.0 * b["sensor_noise"]:
+        lines.append(f"Note: the noise floor (white part of the residual) is {b['noise_floor'] / b['sensor_noise']:.1f}× "
+                     f"the sensor noise seen on the flattest parts of the images ({b['sensor_noise'] * 1e9:.2f} nm): it "
+                     f"holds pixel-scale model error (sub-pixel structure the reference cannot resample), so the "
+                     f"status is relative to that floor; against the sensor noise the final gap is "
+                     f"{ratio_text(rep['final']['gap_to_sensor_noise'])}.")
     lines.append("Where: " + where_text(rep["where"]))
     lines += effect_lines(rep["effects"])
     for name, why in rep["not_identifiable"].items():

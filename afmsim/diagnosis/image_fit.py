@@ -31,7 +31,7 @@ from .image_reference import Surface, parabolic_dilation, trace_reference
 
 __all__ = ["ImageDesign", "ImageFit", "fit_image", "redundancy", "LINEAR_EFFECTS"]
 
-LINEAR_EFFECTS = ("creep", "drift", "cross_coupling", "asymmetry")
+LINEAR_EFFECTS = ("creep", "drift", "cross_coupling", "asymmetry", "z_bow")
 PRIOR = 1e-12  # m per prior-scale of a coefficient
 FD_STEP = 0.01  # decades, finite-difference step of the non-linear parameters
 SCAN_KEEP = {"dynamics": 2, "tip": 1, "z_feedback": 1}  # starts taken from each matched-filter ranking
@@ -158,8 +158,8 @@ def _hyper_keys(effects) -> list[str]:
 class _Problem:
     """Residual and Jacobian of one model (columns, non-linear parameters) on some lines.
 
-    The recorded height is ``g·h`` with ``h`` the Z-loop output, compared line-levelled
-    (:meth:`ImageDesign.rows`).
+    The recorded height is ``g·h + Σ c_j·bz_j`` with ``h`` the Z-loop output and ``bz_j`` the height
+    columns (``z_bow``), compared line-levelled (:meth:`ImageDesign.rows`).
     """
 
     def __init__(self, design: ImageDesign, columns: list[Column], keys: list[str], lines: np.ndarray, blur=0.0):
@@ -167,6 +167,9 @@ class _Problem:
         self.bx = np.ascontiguousarray(np.column_stack([c.bx for c in columns]))
         self.by = np.ascontiguousarray(np.column_stack([c.by for c in columns]))
         self.moves_x, self.moves_y = np.any(self.bx != 0, axis=0), np.any(self.by != 0, axis=0)
+        self.zcols = np.array([k for k, c in enumerate(columns) if c.bz is not None], dtype=int)
+        bz = np.column_stack([columns[k].bz for k in self.zcols]) if self.zcols.size else np.zeros((design.layout.n, 0))
+        self.bz_img = design.layout.images(bz)  # (trace, retrace), each (lines, pixels, q)
         self.prior = np.array([PRIOR / c.scale for c in columns])
         self.p = len(columns)
         self.data = design.rows(lines, design.record.trace, design.record.retrace)
@@ -235,11 +238,17 @@ class _Problem:
         g = theta[self.p]
         lay = self.design.layout
         hh = lay.images(h)
-        pred = (g * hh[0], g * hh[1])
+        cz = theta[self.zcols]
+        pred = tuple(g * img + b @ cz for img, b in zip(hh, self.bz_img))
         dd = None
         if jac:
             dd = lay.images(dh)
             dd = (g * dd[0], g * dd[1])
+            at = np.nonzero(np.isin(cols, self.zcols))[0]
+            for j in at:  # height columns: their own signal (the position tangent is zero)
+                z = int(np.nonzero(self.zcols == cols[j])[0][0])
+                for img, b in zip(dd, self.bz_img):
+                    img[..., j] += b[..., z]
         return pred, hh, dd, x, y
 
     def model_rows(self, theta, jac=False, cols=None):
@@ -296,7 +305,7 @@ def _columns_for(design: ImageDesign, effects, start: "ImageFit | None") -> list
         if not old:
             x_fit, y_fit = (start.x, start.y) if start else (design.layout.u, design.layout.v)
             old = effect_columns(design.layout, e, design.baseline, x_fit=x_fit, y_fit=y_fit,
-                                 scales=_stage_scales(design, start))
+                                 scales=_stage_scales(design, start), reference=design.kind)
         cols += old
     return cols
 

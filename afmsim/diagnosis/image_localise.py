@@ -9,7 +9,8 @@ Every entry gives ``share`` (fraction of Σr² over the held-out pixels) and ``s
   along x explains (least squares on the model's x-gradient: misplaced lines — drift, creep,
   cross-coupling); ``fast``: the rest, structure within the line (mapping shape, Z lag, tip,
   turnaround dynamics);
-* ``features`` — ``edges`` (the 20 % of pixels with the steepest measured x-slope) vs ``flats``;
+* ``features`` — ``edges`` (the 20 % of pixels with the steepest measured x-slope, each direction's
+  own: hysteresis puts the retrace's edges where the trace is flat) vs ``flats``;
 * ``position`` — left / centre / right third of the line (the turnarounds are at the ends);
 * ``time`` — first vs second half of the held-out lines (frame start: creep, approach transients).
 """
@@ -25,9 +26,10 @@ def _share(r2: np.ndarray, mask: np.ndarray, total: float) -> dict:
     return {"share": round(float(r2[mask].sum()) / total, 4), "sample_fraction": round(float(mask.mean()), 4)}
 
 
-def localise_image(trace_res, retrace_res, trace_model, retrace_model, measured_trace, held, *, with_trace=True) -> dict:
+def localise_image(trace_res, retrace_res, trace_model, retrace_model, measured, held, *, with_trace=True) -> dict:
     """Shares of the held-out gap. Residual and model images are (lines, pixels), residuals line-levelled;
-    ``held`` (bool, lines) selects the held-out lines; ``with_trace=False`` scores the retrace only."""
+    ``measured`` is the measured (trace, retrace) pair; ``held`` (bool, lines) selects the held-out
+    lines; ``with_trace=False`` scores the retrace only."""
     res = [retrace_res[held]] if not with_trace else [trace_res[held], retrace_res[held]]
     mod = [retrace_model[held]] if not with_trace else [trace_model[held], retrace_model[held]]
     r = np.stack(res)  # (directions, lines, pixels)
@@ -44,9 +46,8 @@ def localise_image(trace_res, retrace_res, trace_model, retrace_model, measured_
     slow = float(np.sum((shift * grad) ** 2))
     where["axis"] = {"slow": {"share": round(min(slow / total, 1.0), 4)},
                      "fast": {"share": round(max(1.0 - slow / total, 0.0), 4)}}
-    slope = np.abs(np.gradient(measured_trace[held], axis=1))
+    slope = np.abs(np.gradient(np.stack([m[held] for m in (measured if with_trace else measured[1:])]), axis=2))
     edges = slope >= np.quantile(slope, 0.8)
-    edges = np.broadcast_to(edges, r.shape)
     where["features"] = {"edges": _share(r2, edges, total), "flats": _share(r2, ~edges, total)}
     nx = r.shape[2]
     col = np.broadcast_to(np.arange(nx), r.shape)

@@ -23,7 +23,15 @@ Columns of ``B`` (each a named group):
   superposition, τ0 = ``CREEP_TAU0_S``; reported γ is per decade;
 * ``drift`` — ``r·(t − t_mid)`` on x (m/s). A drift along y is a change of the slow-axis scale and is
   absorbed by the baseline's y polynomial;
-* ``cross_coupling`` — ``x += c·(y − ȳ)``, ``y += c·(x − x̄)`` with the current model's positions.
+* ``cross_coupling`` — ``x += c·(y − ȳ)``, ``y += c·(x − x̄)`` with the current model's positions;
+* ``z_bow`` — not a position but a height term (``Column.bz``): a smooth background along x that
+  differs between the scan directions, ``Σ_k c_k·P_k(x_int)`` for k = 1…``BOW_DEGREE``, on the
+  retrace relative to the trace (trace reference) or per direction (scenario reference: the mean
+  of both and their half-difference). It is what Z-piezo hysteresis/creep does on a line that
+  sweeps a Z range (a tilted sample: trace and retrace run the Z loop's two branches, a lens-shaped
+  difference up to 10–15 % of the range swept), what Z drift within a line does (a tilt between
+  trace and retrace) and what out-of-plane scanner bow does (5–50 nm over 100 µm, datasheet).
+  Line levelling removes its P0 (line-to-line offsets).
 
 Non-linear (hyper-)parameters: ``dynamics`` (F = ω0²/(s² + 2ζω0 s + ω0²), Tustin with pre-warping),
 ``z_feedback`` (the loop's ``ki``), ``tip`` (extra paraboloid radius, the reference is re-dilated).
@@ -46,12 +54,13 @@ from scipy.signal import bilinear, fftconvolve, lfilter, lfilter_zi
 from afmsim.scan import RasterGeometry, raster_trajectory
 
 __all__ = ["Layout", "ZLoop", "Column", "baseline_columns", "effect_columns", "resonance", "SUBSAMPLES",
-           "MAP_DEGREE", "CREEP_TAU0_S"]
+           "MAP_DEGREE", "CREEP_TAU0_S", "BOW_DEGREE"]
 
 SUBSAMPLES = 4
 MAP_DEGREE = 5
 Y_DEGREE = 2
 CREEP_TAU0_S = 0.01
+BOW_DEGREE = 3
 
 
 class Layout:
@@ -98,13 +107,16 @@ class Layout:
 
 @dataclass(frozen=True)
 class Column:
-    """One position basis column: its group (``baseline`` or an effect), name and x/y signals (N,)."""
+    """One basis column: its group (``baseline`` or an effect), name, x/y position signals (N,) and, for
+    a height term, the height signal ``bz`` (N,; m per unit coefficient, added after the Z loop and the
+    height gain)."""
 
     group: str
     name: str
     bx: np.ndarray
     by: np.ndarray
     scale: float  # plausible magnitude of the coefficient (prior width)
+    bz: np.ndarray | None = None
 
 
 def _mapping(layout: Layout, degree: int, which: str) -> list[tuple[str, np.ndarray]]:
@@ -144,13 +156,30 @@ def _creep_signal(layout: Layout, path: np.ndarray) -> np.ndarray:
     return fftconvolve(steps, kernel)[: path.size][layout.frame_start:]
 
 
-def effect_columns(layout: Layout, effect: str, kind: str, *, x_fit=None, y_fit=None, scales=(1.0, 1.0)) -> list[Column]:
-    """Position columns of a linear ``effect`` (creep, drift, cross_coupling, asymmetry); [] for the others.
+def bow_columns(layout: Layout, reference: str) -> list[Column]:
+    """Height columns of ``z_bow``: P1…P_BOW_DEGREE of the intended x on the retrace (trace reference),
+    or as the mean of both directions and their half-difference (scenario reference); 1 m per unit."""
+    zeros = np.zeros(layout.n)
+    p = legendre.legvander(layout.un, BOW_DEGREE)[:, 1:]
+    if reference == "trace":
+        return [Column("z_bow", f"retrace_P{k + 1}", zeros, zeros, 1e-8, p[:, k] * layout.retrace)
+                for k in range(BOW_DEGREE)]
+    sign = np.where(layout.retrace, 1.0, -1.0)
+    return [Column("z_bow", f"{which}_P{k + 1}", zeros, zeros, 1e-8, p[:, k] * w)
+            for which, w in (("mean", 1.0), ("width", sign)) for k in range(BOW_DEGREE)]
+
+
+def effect_columns(layout: Layout, effect: str, kind: str, *, x_fit=None, y_fit=None, scales=(1.0, 1.0),
+                   reference: str = "scenario") -> list[Column]:
+    """Columns of a linear ``effect`` (creep, drift, cross_coupling, asymmetry, z_bow); [] for the others.
 
     ``x_fit``/``y_fit`` are the current model's positions (m) and ``scales`` its mean stage scale
-    (actual/intended) per axis; creep and cross-coupling act on the actual motion.
+    (actual/intended) per axis; creep and cross-coupling act on the actual motion. ``reference``
+    (``scenario``/``trace``) lays out the height columns of ``z_bow``.
     """
     zeros = np.zeros(layout.n)
+    if effect == "z_bow":
+        return bow_columns(layout, reference)
     if effect == "creep":
         return [Column("creep", "gamma", scales[0] * _creep_signal(layout, layout.path_x),
                        scales[1] * _creep_signal(layout, layout.path_y), 0.02)]

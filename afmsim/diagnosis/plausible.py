@@ -56,6 +56,10 @@ PLAUSIBLE: dict[tuple[str, str], Range] = {
     # datasheet: MLCT apex 20 nm nominal, 60 nm max (M); worn tips up to ~100 nm
     ("tip", "apex_radius_m"): Range(0.5e-9, 100e-9, "m", "datasheet MLCT apex 20 nm nominal, 60 nm max (M); "
                                                         "worn tips ≤ ~100 nm"),
+    # Z-piezo hysteresis: ~2 % of the range for small signals, 10–15 % at full range (datasheet, H);
+    # trace and retrace of a line run the two branches over the Z range the line sweeps
+    ("z_bow", "share_of_line_z_range"): Range(0.0, 0.15, "1", "datasheet piezo hysteresis 2 % (small signals) "
+                                                               "to 10–15 % (full range) of the range swept (H)"),
 }
 
 
