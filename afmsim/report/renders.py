@@ -25,7 +25,7 @@ __all__ = ["RENDER_SIZE", "common_z_range", "render_run_views", "render_jobs", "
            "render_names"]
 
 #: Window size of every run render (width, height), pixels.
-RENDER_SIZE = (1000, 750)
+RENDER_SIZE = (800, 600)
 
 
 def common_z_range(truth: HeightMap | None, images: dict) -> tuple[float, float]:

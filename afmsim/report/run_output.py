@@ -61,7 +61,7 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
     if renders != "none":
         from afmsim.render.probe import start_rendering_probe
 
-        start_rendering_probe()  # its answer is read after the figures are queued
+        start_rendering_probe()  # a no-op when the caller started it before the scans (afmsim run does)
     started = time.perf_counter()
     folder = Path(folder)
     scenario, kind = result.scenario, result.scenario.sample.kind
@@ -84,18 +84,23 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
                             {"title": f"{scenario.name}: binarized images used for NSL2 (experiment 1)"}))
     ticker = _Ticker(progress)
     written, warnings = [folder / "metrics.json", folder / "scenario.yaml"], []
+    # The probe's answer (ready by now: it ran beside the scans) decides the renders before the
+    # workers fork; the renders, the longest pieces, are handed out first.
+    # All renders are one piece: each process pays VTK's first-render set-up (EGL context, shaders:
+    # about as much as two more renders) once.
+    warning = None if renders == "none" else render_unavailable()
+    views = []
+    if warning:
+        warnings.append(warning)
+    elif renders != "none":
+        views = render_jobs(pairs, result.truth, result.mesh, folder, name=scenario.name, which=renders, best=best)
+    render_piece = [(_render_all, (views,), {})] if views else []
     with worker_pool(max(1, workers)) as executor:
+        renders_done = ordered_map(executor, _call, render_piece, ticker("renders", len(views), per_piece=len(views)),
+                                   wait=False)
         figures = ordered_map(executor, _call, figure_jobs, ticker("figures", len(figure_jobs)), wait=False)
         written += _write_arrays(result, folder, scenario_yaml)
-        warning = None if renders == "none" else render_unavailable()
-        views = []
-        if warning:
-            warnings.append(warning)
-        elif renders != "none":
-            views = [(func, args, {}) for func, args in render_jobs(pairs, result.truth, result.mesh, folder,
-                                                                    name=scenario.name, which=renders, best=best)]
-        renders_done = ordered_map(executor, _call, views, ticker("renders", len(views)), wait=False)
-        figure_paths, render_paths = figures(), renders_done()
+        render_paths, figure_paths = [path for paths in renders_done() for path in paths], figures()
     written += figure_paths + render_paths
     if progress is not None:
         progress("report", 0, 1)
@@ -115,6 +120,11 @@ def _call(func, args, kwargs):
     return func(*args, **kwargs)
 
 
+def _render_all(views) -> list[Path]:
+    """Draw ``(function, args)`` render jobs one after the other, in one process."""
+    return [func(*args) for func, args in views]
+
+
 class _Ticker:
     """``ticker(stage, total)`` gives the ``on_done`` of :func:`ordered_map` that reports ``stage`` to
     ``progress(stage, done, total)`` (nothing when ``progress`` is None)."""
@@ -122,10 +132,11 @@ class _Ticker:
     def __init__(self, progress):
         self.progress = progress
 
-    def __call__(self, stage: str, total: int):
+    def __call__(self, stage: str, total: int, per_piece: int = 1):
+        """``per_piece``: how many of the stage's ``total`` items each piece carries."""
         if self.progress is None:
             return None
-        return lambda _index, done, _total: self.progress(stage, done, total)
+        return lambda _index, done, _total: self.progress(stage, min(total, done * per_piece), total)
 
 
 def _write_arrays(result: ScenarioResult, folder: Path, scenario_yaml: str) -> list[Path]:
