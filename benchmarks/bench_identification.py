@@ -5,8 +5,8 @@ M samples (one period of a 0 … 100 V sine through a fixed asymmetric play-oper
 one warm-up period) is identified by ``DIAPI.fit`` and by ``IIAPI.fit`` (forward fit + monotone
 clipping + analytic inverse); (M, N) pairs with M < 8N are skipped (too few samples for
 2N weights, ``check_fit_inputs``). Each timing is the median of ``--repeats`` runs, the two models
-alternating. Time saving = (t_IIAPI − t_DIAPI)/t_IIAPI (the paper reports ~25 % at M = 200 in
-Matlab). Correctness is checked in the same run: both inverse models must reproduce the loop's
+alternating. Time saving = (t_IIAPI − t_DIAPI)/t_IIAPI (the paper's Fig. 8 value is
+``afmsim.paper.FIG8``). Correctness is checked in the same run: both inverse models must reproduce the loop's
 voltage to < 2 % of its range, else the script exits non-zero. Writes
 ``benchmarks/results/identification_timing.json`` with machine info.
 
@@ -34,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import afmsim  # noqa: E402
 from afmsim.hysteresis import DIAPI, IIAPI, play  # noqa: E402
+from afmsim.paper import FIG8  # noqa: E402
 
 M_VALUES = (100, 200, 500, 1000, 2000)
 N_VALUES = (5, 10, 15, 20)
@@ -93,7 +94,8 @@ def main() -> None:
 
     result = {
         "benchmark": "identification time, DIAPI (direct) vs IIAPI (forward fit + analytic inverse)",
-        "paper": "Wang et al., Fig. 8: ~25 % saving at M = 200 (Matlab, i5, mean of 10,000 runs)",
+        "paper": (f"Wang et al., Fig. 8: ~{100 * FIG8['saving_fraction_at_M200']:.0f} % saving at M = {FIG8['M']} "
+                  f"(Matlab, i5, mean of {FIG8['runs']:,} runs)"),
         "repeats": args.repeats, "statistic": "median",
         "rows": rows,
         "saving_percent_by_M_mean_over_N": {str(m): mean_saving("M", m) for m in M_VALUES},

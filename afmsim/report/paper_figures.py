@@ -22,6 +22,7 @@ import numpy as np  # noqa: E402
 
 from afmsim.metrics import lens_centres  # noqa: E402
 from afmsim.metrics.nsl2 import binarize, nsl2  # noqa: E402
+from afmsim.paper import FIG8  # noqa: E402
 from afmsim.samples.heightmap import HeightMap  # noqa: E402
 
 from .figures import (  # noqa: E402
@@ -265,7 +266,9 @@ def plot_time_saving(json_path, png_path) -> Path:
             ax_b.plot(*zip(*pts), "s-", color=cmap(i / max(1, len(ns) - 1)), label=f"N = {n}")
     mean_by_m = [(m, float(np.mean([table[m, n] for n in ns if (m, n) in table]))) for m in ms]
     ax_b.plot(*zip(*mean_by_m), "k--", linewidth=1.5, label="mean over N")
-    ax_b.plot([200], [25], "*", color="tab:red", markersize=14, label="paper: ≈ 25 % at M = 200")
+    paper_m, paper_percent = FIG8["M"], 100 * FIG8["saving_fraction_at_M200"]
+    ax_b.plot([paper_m], [paper_percent], "*", color="tab:red", markersize=14,
+              label=f"paper: ≈ {paper_percent:.0f} % at M = {paper_m}")
     ax_b.set_xscale("log")
     ax_a.set_xlabel("operator quantity N")
     ax_b.set_xlabel("samples per hysteresis loop M")
