@@ -68,12 +68,14 @@ def identify(
     seed: int = typer.Option(0, min=0, help="Seed of the numpy Generator for all noise draws."),
     experiments: int = typer.Option(10, min=1, max=1000, help="Repeated evaluation experiments (fresh noise)."),
     n_operators: int = typer.Option(10, min=1, max=50, help="Backlash operators N per model."),
-    hysteresis: _Hysteresis = typer.Option("preisach", help="Plant hysteresis family (afmsim.stage.HYSTERESIS_MODELS): "
-                                   "preisach (state-bound minor loops), duhem (direction-bound) or linear."),
+    hysteresis: Literal[(*HYSTERESIS_MODELS, "all")] = typer.Option(
+        "preisach", help="Plant hysteresis family (afmsim.stage.HYSTERESIS_MODELS): preisach (state-bound minor "
+        "loops), duhem (direction-bound) or linear; all: every law with hysteresis, same seed, Table 2 side by side "
+        "(each law's own outputs in <out>/<law>/)."),
 ):
     """Identify SPI, DIAPI, IIAPI and the better model on the default stage (paper §3.2, Tables 1–2).
 
-    Python: afmsim.identification.identify(...) and write_identification(...).
+    Python: afmsim.identification.identify(...) and write_identification(...); --hysteresis all: identify_laws(...) and write_identification_laws(...).
     """
     from afmsim.identification import identify as run_identify, table1, table2, write_identification
     from afmsim.runio import default_run_dir, run_folder
@@ -81,12 +83,24 @@ def identify(
 
     out = out or default_run_dir("identify", hysteresis)
     config = {"seed": seed, "experiments": experiments, "n_operators": n_operators, "hysteresis": hysteresis}
+    if hysteresis == "all":
+        from afmsim.identification import identify_laws, table2_laws, write_identification_laws
     try:
         with run_folder(out, config=config, seed=seed, command="identify") as folder:
-            result = run_identify(default_stage(hysteresis), seed=seed, experiments=experiments, n_operators=n_operators)
-            write_identification(result, folder)
+            if hysteresis == "all":
+                results = identify_laws(seed=seed, experiments=experiments, n_operators=n_operators)
+                write_identification_laws(results, folder)
+            else:
+                result = run_identify(default_stage(hysteresis), seed=seed, experiments=experiments,
+                                      n_operators=n_operators)
+                write_identification(result, folder)
     except FileExistsError as error:
         _fail(str(error))
+    if hysteresis == "all":
+        typer.echo(table2_laws(results))
+        typer.echo(f"\nTable 1 of each law: {out}/<law>/tables.txt ({', '.join(results)})")
+        typer.echo(f"wrote {out}")
+        return
     typer.echo(table1(result))
     typer.echo("")
     typer.echo(table2(result))

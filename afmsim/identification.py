@@ -24,7 +24,12 @@ from afmsim.reproducible import single_blas_thread
 from afmsim.runio import write_json
 from afmsim.stage import HYSTERESIS_MODELS, IdentificationRecord, XYStage, default_stage, identification_experiment
 
-__all__ = ["IdentificationResult", "identify", "plant_law", "table1", "table2", "write_identification"]
+__all__ = ["IdentificationResult", "identify", "plant_law", "table1", "table2", "write_identification", "HYSTERETIC_LAWS",
+           "identify_laws", "table2_laws", "write_identification_laws"]
+
+#: The plant laws with hysteresis (:data:`afmsim.stage.HYSTERESIS_MODELS` less ``linear``): the
+#: minor-loop laws whose Table 2 :func:`identify_laws` sets side by side.
+HYSTERETIC_LAWS = tuple(name for name in HYSTERESIS_MODELS if name != "linear")
 
 
 @dataclass
@@ -75,6 +80,19 @@ def identify(stage: XYStage | None = None, *, seed: int = 0, experiments: int = 
     return IdentificationResult(fitted, errors, fit_seconds, training, evaluations, settings)
 
 
+def identify_laws(laws=HYSTERETIC_LAWS, *, seed: int = 0, **settings) -> dict[str, IdentificationResult]:
+    """:func:`identify` on the default stage of each plant law (:data:`HYSTERETIC_LAWS` by default),
+    every law with the same ``seed`` and ``settings`` (any other keyword of :func:`identify`), so
+    each law's numbers are those of its own single-law run. Returns law → result, in ``laws`` order."""
+    from afmsim.stage import default_stage
+
+    laws = list(dict.fromkeys(laws))
+    unknown = [law for law in laws if law not in HYSTERESIS_MODELS]
+    if unknown or not laws:
+        raise ValueError(f"laws must be among {', '.join(HYSTERESIS_MODELS)}, got {', '.join(unknown) or 'none'}")
+    return {law: identify(default_stage(law), seed=seed, **settings) for law in laws}
+
+
 def table1(result: IdentificationResult) -> str:
     """Table 1 analogue: DIAPI widths (µm), slopes ω_af, ω_ab (V/µm) and e_ω (eq. 7)."""
     m = result.models["diapi"]
@@ -107,6 +125,38 @@ def table2(result: IdentificationResult) -> str:
         ratio = summarize(result.errors["diapi"]["rms_V"])["mean"] / summarize(result.errors["spi"]["rms_V"])["mean"]
         lines.append(f"DIAPI/SPI mean RMS ratio: {ratio:.2f} (paper {TABLE2_RATIO:.2f}; the plant's skew is calibrated "
                      "to Table 2's SPI error, see README 'Reference results')")
+    return "\n".join(lines)
+
+
+def table2_laws(results: dict) -> str:
+    """Table 2 analogue with a column block per plant law (``results``: law → result of
+    :func:`identify_laws`): per experiment the RMS and maximum voltage error (V) of every model, then
+    mean, σ and the paper's means, and each law's DIAPI/SPI mean RMS ratio."""
+    laws = list(results)
+    names = list(results[laws[0]].errors)
+    cols = [(law, stat, name) for law in laws for stat in ("rms_V", "max_V") for name in names]
+    cell = 9  # characters per number; a law's block is its 2 × len(names) cells
+    block = 2 * len(names) * (cell + 1) - 1
+    seeds = {r.settings.get("seed") for r in results.values()}
+    lines = [f"Table 2 analogue: model voltage errors (V) on fresh experiments, per plant law (seed "
+             f"{', '.join(map(str, seeds))})",
+             "      " + " ".join(f"{law + ' plant':-^{block}}" for law in laws),
+             f"{'exp':>5} " + " ".join(f"{('RMS ' if s == 'rms_V' else 'max ') + n.upper():>{cell}}" for _, s, n in cols)]
+
+    def row(label, values):
+        return f"{label:>5} " + " ".join(f"{v:>{cell}.4f}" if v is not None else f"{'-':>{cell}}" for v in values)
+
+    for k in range(len(results[laws[0]].errors[names[0]]["rms_V"])):
+        lines.append(row(str(k + 1), [results[law].errors[n][s][k] for law, s, n in cols]))
+    for label, stat in (("mean", "mean"), ("σ", "std")):
+        lines.append(row(label, [summarize(results[law].errors[n][s])[stat] for law, s, n in cols]))
+    lines.append(row("paper", [TABLE2_MEANS.get(n, {}).get(s) for _, s, n in cols]))
+    if "spi" in names and "diapi" in names:
+        ratios = {law: summarize(r.errors["diapi"]["rms_V"])["mean"] / summarize(r.errors["spi"]["rms_V"])["mean"]
+                  for law, r in results.items()}
+        lines.append("DIAPI/SPI mean RMS ratio: " + ", ".join(f"{law} {v:.2f}" for law, v in ratios.items())
+                     + f" (paper {TABLE2_RATIO:.2f}; each plant's skew is calibrated to Table 2's SPI error, "
+                       "see README 'Reference results')")
     return "\n".join(lines)
 
 
@@ -143,3 +193,22 @@ def write_identification(result: IdentificationResult, folder) -> None:
         for k in range(record.t.size):
             writer.writerow([f"{record.t[k]:.6g}", f"{record.voltage[k]:.6g}", f"{record.displacement[k]:.6g}",
                              *[f"{p[k]:.6g}" for p in predictions.values()]])
+
+
+def write_identification_laws(results: dict, folder) -> None:
+    """Write :func:`identify_laws`'s results into ``folder``: each law's own outputs
+    (:func:`write_identification`) in ``folder/<law>/``, and at the top ``identify.json`` (one
+    entry per law under ``"laws"``), ``tables.txt`` (:func:`table2_laws`) and
+    ``table2.md``/``table2.csv`` with a column block per law."""
+    from afmsim.report.tables import identification_table2_laws
+
+    folder = Path(folder)
+    for law, result in results.items():
+        (folder / law).mkdir(exist_ok=True)
+        write_identification(result, folder / law)
+    write_json(folder / "identify.json", {"laws": {law: summary_dict(r) for law, r in results.items()},
+                                          "paper_table2": TABLE2_MEANS})
+    (folder / "tables.txt").write_text(table2_laws(results) + "\n")
+    md, csv_text = identification_table2_laws(results)
+    (folder / "table2.md").write_text(md)
+    (folder / "table2.csv").write_text(csv_text)

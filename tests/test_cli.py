@@ -48,7 +48,7 @@ def test_help_lists_the_choices_and_shows_no_value_for_flags():
     from afmsim.stage import HYSTERESIS_MODELS
     from typer.main import get_command
 
-    assert f"<{'|'.join(HYSTERESIS_MODELS)}>" in _help("identify") and "linear" in HYSTERESIS_MODELS
+    assert f"<{'|'.join(HYSTERESIS_MODELS)}|all>" in _help("identify") and "linear" in HYSTERESIS_MODELS
     assert "<loops|images>" in _help("validate-diagnosis")
     assert "<preisach|symmetric>" in _help("diagnose") and "<auto|scenario|trace>" in _help("diagnose")
     for name in get_command(app).commands:
@@ -168,6 +168,26 @@ def test_identify_writes_tables_and_json(tmp_path):
         assert {"mean", "std"} <= set(data["models"][name]["max_V"])
         assert data["models"][name]["params"]
     assert (out / "loops.csv").read_text().startswith("t_s,voltage_V,displacement_m")
+
+
+def test_identify_all_laws_writes_one_table2_with_a_block_per_law(tmp_path):
+    from afmsim.identification import HYSTERETIC_LAWS
+
+    out = tmp_path / "identify-all"
+    result = runner.invoke(app, ["identify", "--out", str(out), "--experiments", "2", "--hysteresis", "all"])
+    assert result.exit_code == 0, result.output
+    assert set(HYSTERETIC_LAWS) == {"preisach", "duhem"}
+    for law in HYSTERETIC_LAWS:
+        assert f"{law} plant" in result.output
+        assert (out / law / "identify.json").is_file() and (out / law / "fig6_loops.png").is_file()
+    data = json.loads((out / "identify.json").read_text())
+    assert list(data["laws"]) == list(HYSTERETIC_LAWS)
+    for law in HYSTERETIC_LAWS:
+        own = json.loads((out / law / "identify.json").read_text())
+        assert data["laws"][law]["settings"]["plant"] == law
+        assert data["laws"][law]["models"]["diapi"]["rms_V"] == own["models"]["diapi"]["rms_V"]
+    header = (out / "table2.csv").read_text().splitlines()[0].split(",")
+    assert "preisach_rms_V_spi" in header and "duhem_max_V_diapi" in header
 
 
 def test_diagnose_writes_report_and_rejects_bad_records(tmp_path):

@@ -50,3 +50,28 @@ def test_both_plant_laws_hold_their_table2_calibration(law):
     spi, diapi = np.mean(r.errors["spi"]["rms_V"]), np.mean(r.errors["diapi"]["rms_V"])
     assert spi == pytest.approx(0.080, abs=0.002)
     assert diapi < 0.4 * spi
+
+
+def test_identify_laws_sets_each_law_beside_the_other_with_its_single_law_numbers():
+    """``identify_laws`` runs every law with hysteresis (HYSTERESIS_MODELS less linear) on the same
+    seed; each law's errors are those of its own single-law run, and Table 2 shows both blocks."""
+    from afmsim.identification import HYSTERETIC_LAWS, identify_laws, table2_laws
+    from afmsim.metrics import summarize
+    from afmsim.stage import HYSTERESIS_MODELS, default_stage
+
+    assert HYSTERETIC_LAWS == tuple(n for n in HYSTERESIS_MODELS if n != "linear") and len(HYSTERETIC_LAWS) >= 2
+    both = identify_laws(seed=4, experiments=2, models=["spi", "diapi"])
+    assert list(both) == list(HYSTERETIC_LAWS)
+    text = table2_laws(both)
+    for law in HYSTERETIC_LAWS:
+        single = identify(default_stage(law), seed=4, experiments=2, models=["spi", "diapi"])
+        assert both[law].errors == single.errors and both[law].settings["plant"] == law
+        assert f"{law} plant" in text and f"{summarize(single.errors['diapi']['rms_V'])['mean']:.4f}" in text
+    assert both["preisach"].errors != both["duhem"].errors     # the laws differ: two blocks, not one copied
+
+
+def test_identify_laws_rejects_an_unknown_law():
+    from afmsim.identification import identify_laws
+
+    with pytest.raises(ValueError, match="laws must be among preisach"):
+        identify_laws(["preisach", "maxwell"], experiments=1)

@@ -22,7 +22,7 @@ import numpy as np
 from afmsim.paper import TABLE2_MEANS, TABLE2_RATIO, TABLE3, TABLE4
 
 __all__ = ["PAPER_COLUMNS", "PAPER_TABLE3", "PAPER_TABLE4", "paper_nsl2_for", "nsl2_table", "write_nsl2_table",
-           "identification_table2", "identification_table1_csv", "identification_table1_markdown", "TABLE1_COLUMNS",
+           "identification_table2", "identification_table2_laws", "identification_table1_csv", "identification_table1_markdown", "TABLE1_COLUMNS",
            "markdown_table"]
 
 #: afmsim controller → the paper's NSL2 column.
@@ -185,6 +185,40 @@ def identification_table2(result) -> tuple[str, str]:
     if "spi" in names and "diapi" in names:
         ratio = summarize(result.errors["diapi"]["rms_V"])["mean"] / summarize(result.errors["spi"]["rms_V"])["mean"]
         md += ["", f"DIAPI/SPI mean RMS ratio: {ratio:.2f} (paper {TABLE2_RATIO:.2f})"]
+    return "\n".join(md) + "\n", buf.getvalue()
+
+
+def identification_table2_laws(results: dict) -> tuple[str, str]:
+    """Table 2 analogue with a column block per plant law (``results``: law → identification result,
+    :func:`afmsim.identification.identify_laws`) as ``(markdown, csv)``: per experiment, mean, σ
+    and the paper's means, RMS and max error (V) of every model; CSV columns ``<law>_<stat>_<model>``."""
+    from afmsim.metrics import summarize
+
+    laws = list(results)
+    names = list(results[laws[0]].errors)
+    cols = [(law, s, n) for law in laws for s in ("rms_V", "max_V") for n in names]
+    label = {"rms_V": "RMS", "max_V": "max"}
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["experiment", *[f"{law}_{s}_{n}" for law, s, n in cols]])
+    rows_md = []
+    for k in range(len(results[laws[0]].errors[names[0]]["rms_V"])):
+        vals = [results[law].errors[n][s][k] for law, s, n in cols]
+        w.writerow([k + 1, *[f"{v:.6g}" for v in vals]])
+        rows_md.append([str(k + 1), *[f"{v:.4f}" for v in vals]])
+    for name, stat in (("mean", "mean"), ("std", "std")):
+        vals = [summarize(results[law].errors[n][s])[stat] for law, s, n in cols]
+        w.writerow([name, *[f"{v:.6g}" for v in vals]])
+        rows_md.append([f"**{name}**" if name == "mean" else "σ", *[_fmt(v, ".4f") for v in vals]])
+    paper = [TABLE2_MEANS.get(n, {}).get(s) for _, s, n in cols]
+    w.writerow(["paper", *["" if v is None else f"{v:.6g}" for v in paper]])
+    rows_md.append(["paper mean", *[_fmt(v, ".3f") for v in paper]])
+    md = ["**Table 2 analogue per plant law: model voltage errors (V) on fresh experiments**", "",
+          markdown_table(["experiment", *[f"{law}: {label[s]} {n.upper()}" for law, s, n in cols]], rows_md)]
+    if "spi" in names and "diapi" in names:
+        ratios = [f"{law} {summarize(r.errors['diapi']['rms_V'])['mean'] / summarize(r.errors['spi']['rms_V'])['mean']:.2f}"
+                  for law, r in results.items()]
+        md += ["", f"DIAPI/SPI mean RMS ratio: {', '.join(ratios)} (paper {TABLE2_RATIO:.2f})"]
     return "\n".join(md) + "\n", buf.getvalue()
 
 
