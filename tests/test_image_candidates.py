@@ -76,3 +76,19 @@ def test_z_bow_is_not_named_on_a_linear_z_stage(z_hysteresis_pair):
 def test_an_implausibly_large_bow_is_flagged():
     assert implausible("z_bow", {"share_of_line_z_range": 0.4, "difference_ptp_m": 4e-8})
     assert not implausible("z_bow", {"share_of_line_z_range": 0.03, "difference_ptp_m": 4e-8})
+
+
+def test_a_gap_in_a_few_lines_is_located_there():
+    """A glitch in one line of forty (a tip jump) holds most of the gap; white noise spreads over all lines."""
+    from afmsim.diagnosis.image_localise import localise_image
+
+    rng = np.random.default_rng(3)
+    model = np.cumsum(np.ones((40, 30)), axis=1)
+    noise = rng.normal(size=(40, 30))
+    glitch = noise.copy()
+    glitch[7, 10:20] += 25.0
+    held = np.ones(40, dtype=bool)
+    spread = localise_image(noise, noise, model, model, (model, model), held)["lines"]["worst"]
+    event = localise_image(glitch, noise, model, model, (model, model), held)["lines"]["worst"]
+    assert spread["sample_fraction"] == pytest.approx(0.05, abs=0.01)
+    assert spread["share"] < 0.15 < 0.6 < event["share"]

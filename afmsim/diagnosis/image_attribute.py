@@ -310,6 +310,8 @@ def where_text(w: dict) -> str:
              f"edges {w['features']['edges']['share']:.0%} of gap on {w['features']['edges']['sample_fraction']:.0%} of pixels",
              "left/centre/right {:.0%}/{:.0%}/{:.0%}".format(*(w["position"][k]["share"] for k in ("left", "centre", "right"))),
              f"early/late lines {w['time']['early']['share']:.0%}/{w['time']['late']['share']:.0%}"]
+    if "lines" in w:
+        parts.append(f"worst {w['lines']['worst']['sample_fraction']:.0%} of lines {w['lines']['worst']['share']:.0%}")
     if "direction" in w:
         parts.insert(0, f"trace/retrace {w['direction']['trace']['share']:.0%}/{w['direction']['retrace']['share']:.0%}")
     return "; ".join(parts) + "."

@@ -12,7 +12,10 @@ Every entry gives ``share`` (fraction of Σr² over the held-out pixels) and ``s
 * ``features`` — ``edges`` (the 20 % of pixels with the steepest measured x-slope, each direction's
   own: hysteresis puts the retrace's edges where the trace is flat) vs ``flats``;
 * ``position`` — left / centre / right third of the line (the turnarounds are at the ends);
-* ``time`` — first vs second half of the held-out lines (frame start: creep, approach transients).
+* ``time`` — first vs second half of the held-out lines (frame start: creep, approach transients);
+* ``lines`` — ``worst``: the held-out lines (each direction its own) with the largest residual, 5 %
+  of them (at least one): a gap in a few lines is an event in those lines — a tip jump, a particle
+  picked up or dragged, a feedback glitch — that no stage or Z-loop term predicts.
 """
 
 from __future__ import annotations
@@ -20,6 +23,8 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["localise_image"]
+
+WORST_LINES = 0.05  # share of the held-out lines counted as the worst
 
 
 def _share(r2: np.ndarray, mask: np.ndarray, total: float) -> dict:
@@ -58,4 +63,7 @@ def localise_image(trace_res, retrace_res, trace_model, retrace_model, measured,
     line = np.broadcast_to(np.arange(nl)[:, None], r.shape[1:])
     early = np.broadcast_to(line < nl / 2, r.shape)
     where["time"] = {"early": _share(r2, early, total), "late": _share(r2, ~early, total)}
+    energy = r2.sum(axis=2)  # (directions, lines)
+    worst = energy >= np.sort(energy.ravel())[-max(1, int(round(WORST_LINES * energy.size)))]
+    where["lines"] = {"worst": _share(r2, np.broadcast_to(worst[:, :, None], r.shape), total)}
     return where
