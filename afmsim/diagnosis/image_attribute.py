@@ -52,6 +52,7 @@ from .images import ImageRecord, load_images
 from .scenario_effects import as_scenario, modelled_effects
 
 __all__ = ["diagnose_images", "diagnose_image_record", "build_design", "split_lines", "effect_params", "sensor_noise",
+           "line_offsets",
            "IMAGE_CANDIDATES", "ImageFront"]
 
 IMAGE_CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "tip", "z_feedback", "z_bow", "asymmetry")
@@ -177,6 +178,20 @@ def sensor_noise(record: ImageRecord, lines: np.ndarray) -> float:
     return float(np.quantile(np.concatenate(sig), SENSOR_QUANTILE))
 
 
+def line_offsets(record: ImageRecord, lines: np.ndarray) -> dict:
+    """Line-to-line height offsets between the scan directions (m), from the measured images alone.
+
+    The scores compare lines levelled (one free offset per line and direction): an offset is not
+    predictable for a held-out line and carries no XY information. Reported here instead: the
+    median retrace − trace offset of a line's means (Z creep or drift between the directions) and its
+    line-to-line jitter, the robust σ of its second differences over lines / √6 (a slow trend along
+    y drops out; topography cancels between the directions) — the datasheet's 0.5–5 nm."""
+    off = record.retrace[lines].mean(axis=1) - record.trace[lines].mean(axis=1)
+    d2 = np.diff(off, 2)
+    jitter = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0) if d2.size else float("nan")
+    return {"retrace_minus_trace_m": float(np.median(off)), "jitter_m": jitter}
+
+
 def _held_rows(design: ImageDesign, fit: ImageFit, lines) -> np.ndarray:
     rec = design.record
     return design.rows(lines, rec.trace - fit.trace, rec.retrace - fit.retrace)
@@ -262,7 +277,8 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
                      "gap_to_noise": outcome["baseline_gap"]["gap_to_noise"],
                      "train_rms": rms(_held_rows(design, base, design.train)), "noise_floor": sigma,
                      "sensor_noise": sensor, "gap_to_sensor_noise": _ratio(rms(front.heldout_residual(base)), sensor),
-                     "height_range": float(np.ptp(record.trace)), "params": _baseline_params(design, base)},
+                     "height_range": float(np.ptp(record.trace)), "params": _baseline_params(design, base),
+                     "line_offsets": line_offsets(record, design.train | design.held)},
         "where": front.localise(base),
         "effects": [att.evaluations[c] for c in avail if c in att.evaluations],
         "not_identifiable": skipped,
