@@ -208,10 +208,6 @@ def run(
             extra = {}
             with run_folder(out, config=loaded.model_dump(mode="json"), seed=loaded.seed, command="run",
                             extra=extra) as folder:
-                if renders != "none":
-                    from afmsim.render.probe import start_rendering_probe
-
-                    start_rendering_probe()  # checks off-screen rendering in the background while the scans run
                 result = run_scenario(loaded, progress=progress, workers=workers)
                 simulated = time.perf_counter()
                 write_run(result, folder, renders=renders, progress=progress, workers=workers)

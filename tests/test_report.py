@@ -235,3 +235,32 @@ def test_key_renders_share_one_exaggeration_and_the_substrate_reference(run_dir)
         z = args[0].z
         assert abs(np.median(z[z < z.mean()])) < 1e-12
     assert len(render_jobs(images, truth, None, run_dir, which="all")) == 2 * len(images) + 1
+
+
+def _write_then_crash(_hmap, path):
+    import faulthandler
+    import os
+    import signal
+
+    faulthandler.disable()  # pytest's crash dump would only clutter the output
+    path.write_bytes(b"half a PNG")
+    os.kill(os.getpid(), signal.SIGSEGV)  # what a broken GL stack does
+
+
+def _draw_blank(_hmap, path):
+    from afmsim.render import RenderingUnavailable
+
+    raise RenderingUnavailable(f"{path.name}: the off-screen render came out blank")
+
+
+def test_a_render_process_that_crashes_leaves_a_warning_and_no_partial_file(tmp_path):
+    """The renders run in a forked process of their own: its crash is a one-line warning, the
+    caller lives on, and no partial render file is left."""
+    from afmsim.report.run_output import start_renders
+
+    target = tmp_path / "render_none_trace.png"
+    paths, warning = start_renders([(_write_then_crash, (None, target))])()
+    assert paths == [] and "crashed" in warning and "3D renders skipped" in warning
+    assert not target.exists()
+    paths, warning = start_renders([(_draw_blank, (None, tmp_path / "render_sample.png"))])()
+    assert paths == [] and "came out blank" in warning and "\n" not in warning

@@ -162,8 +162,11 @@ def _finish(p: pv.Plotter, mesh: pv.DataSet, *, path, title, clim_nm, axes_um_nm
     if interactive:
         p.show(screenshot=str(path), auto_close=True)
     else:
-        p.screenshot(str(path))
+        image = p.screenshot(str(path))
         p.close()
+        if image is None or float(np.std(image)) == 0.0:  # a GL stack that "renders" nothing
+            path.unlink(missing_ok=True)
+            raise RenderingUnavailable(f"{path.name}: the off-screen render came out blank")
     return path
 
 

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import multiprocessing
 import time
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +22,7 @@ from .paper_figures import plot_binarized, plot_scan_figure
 from .renders import render_jobs, render_unavailable
 from .tables import nsl2_markdown, write_nsl2_table
 
-__all__ = ["write_run", "gwy_channels", "RENDER_CHOICES"]
+__all__ = ["write_run", "gwy_channels", "start_renders", "RENDER_CHOICES"]
 
 #: ``renders=`` of :func:`write_run`: no 3D renders, the key ones (sample, ``none`` and the best
 #: controller's trace), or all (every controller's trace and retrace, and the sample).
@@ -49,8 +52,9 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
     by ``renders`` (:data:`RENDER_CHOICES`; skipped with a warning in the report where this machine
     cannot render), ``report.html`` (self-contained) and ``report.md``.
 
-    Figures and renders are drawn on ``workers`` forked processes (:mod:`afmsim.workers`);
-    ``progress(stage, done, total)`` hears of the "figures", "renders" and "report" stages.
+    Figures are drawn on ``workers`` forked processes (:mod:`afmsim.workers`), the renders beside
+    them in one forked process of their own (:func:`start_renders`); ``progress(stage, done,
+    total)`` hears of the "figures", "renders" and "report" stages.
 
     ``images.npz`` holds ``trace_<controller>``/``retrace_<controller>`` of experiment 1 (heights in
     metres, rows = lines, columns = pixels left → right), ``truth`` and ``dilated`` (the sample and
@@ -58,10 +62,6 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
     """
     if renders not in RENDER_CHOICES:
         raise ValueError(f"renders must be one of {', '.join(RENDER_CHOICES)}, got {renders!r}")
-    if renders != "none":
-        from afmsim.render.probe import start_rendering_probe
-
-        start_rendering_probe()  # a no-op when the caller started it before the scans (afmsim run does)
     started = time.perf_counter()
     folder = Path(folder)
     scenario, kind = result.scenario, result.scenario.sample.kind
@@ -84,23 +84,20 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
                             {"title": f"{scenario.name}: binarized images used for NSL2 (experiment 1)"}))
     ticker = _Ticker(progress)
     written, warnings = [folder / "metrics.json", folder / "scenario.yaml"], []
-    # The probe's answer (ready by now: it ran beside the scans) decides the renders before the
-    # workers fork; the renders, the longest pieces, are handed out first.
-    # All renders are one piece: each process pays VTK's first-render set-up (EGL context, shaders:
-    # about as much as two more renders) once.
-    warning = None if renders == "none" else render_unavailable()
-    views = []
-    if warning:
-        warnings.append(warning)
-    elif renders != "none":
-        views = render_jobs(pairs, result.truth, result.mesh, folder, name=scenario.name, which=renders, best=best)
-    render_piece = [(_render_all, (views,), {})] if views else []
+    views = [] if renders == "none" else render_jobs(pairs, result.truth, result.mesh, folder, name=scenario.name,
+                                                      which=renders, best=best)
+    if progress is not None and views:
+        progress("renders", 0, len(views))
+    renders_done = start_renders(views)
     with worker_pool(max(1, workers)) as executor:
-        renders_done = ordered_map(executor, _call, render_piece, ticker("renders", len(views), per_piece=len(views)),
-                                   wait=False)
         figures = ordered_map(executor, _call, figure_jobs, ticker("figures", len(figure_jobs)), wait=False)
         written += _write_arrays(result, folder, scenario_yaml)
-        render_paths, figure_paths = [path for paths in renders_done() for path in paths], figures()
+        figure_paths = figures()
+    render_paths, warning = renders_done()
+    if warning:
+        warnings.append(warning)
+    elif progress is not None and views:
+        progress("renders", len(views), len(views))
     written += figure_paths + render_paths
     if progress is not None:
         progress("report", 0, 1)
@@ -125,6 +122,42 @@ def _render_all(views) -> list[Path]:
     return [func(*args) for func, args in views]
 
 
+def start_renders(views):
+    """Start the render jobs of :func:`afmsim.report.renders.render_jobs` (``(function, args)``,
+    ``args[1]`` the PNG path) and return a function that waits for them: ``(paths, warning)``.
+
+    They are drawn one after the other (VTK's first-render set-up, EGL context and shaders, costs
+    about two renders and is paid once) in one forked process of their own, beside the figures: a
+    GL stack that crashes or draws blank kills or fails that process only, and the run goes on with
+    ``warning`` (one line, why) instead of renders, their partial files removed. That process is the
+    rendering check, so a run needs no separate probe (:func:`afmsim.render.rendering_available`,
+    used where ``fork`` is missing).
+    """
+    if not views:
+        return lambda: ([], None)
+    if "fork" not in multiprocessing.get_all_start_methods():  # pragma: no cover - not on Linux
+        warning = render_unavailable()
+        paths = [] if warning else _render_all(views)
+        return lambda: (paths, warning)
+    executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork"))
+    future = executor.submit(_render_all, views)
+
+    def wait():
+        try:
+            return future.result(), None
+        except BrokenProcessPool:
+            why = "the rendering process crashed (GL stack)"
+        except Exception as error:  # noqa: BLE001 - any failure to render is reported, the run stands
+            why = f"{type(error).__name__}: {(str(error).splitlines() or [''])[0]}"
+        finally:
+            executor.shutdown()
+        for _, args in views:
+            Path(args[1]).unlink(missing_ok=True)
+        return [], (f"3D renders skipped: off-screen rendering failed here ({why}) — on Debian/Ubuntu install "
+                    "libegl1 and libgl1-mesa-dri")
+    return wait
+
+
 class _Ticker:
     """``ticker(stage, total)`` gives the ``on_done`` of :func:`ordered_map` that reports ``stage`` to
     ``progress(stage, done, total)`` (nothing when ``progress`` is None)."""
@@ -132,11 +165,10 @@ class _Ticker:
     def __init__(self, progress):
         self.progress = progress
 
-    def __call__(self, stage: str, total: int, per_piece: int = 1):
-        """``per_piece``: how many of the stage's ``total`` items each piece carries."""
+    def __call__(self, stage: str, total: int):
         if self.progress is None:
             return None
-        return lambda _index, done, _total: self.progress(stage, min(total, done * per_piece), total)
+        return lambda _index, done, _total: self.progress(stage, done, total)
 
 
 def _write_arrays(result: ScenarioResult, folder: Path, scenario_yaml: str) -> list[Path]:
