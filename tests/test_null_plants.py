@@ -55,7 +55,7 @@ def test_no_named_effect_explains_a_null(null_reports):
             assert rep["baseline"]["gap_to_noise"] <= 2.0
 
 
-@pytest.mark.xfail(strict=True, reason="issue 11.3 not met: the 16-level relay-grid baseline leaves 22-870x the noise floor "
+@pytest.mark.xfail(strict=True, reason="issue 11.3 not met: the 16-level relay-grid baseline leaves 5-19x the noise floor "
                                        "on other hysteresis families (see README, 'Status and honesty')")
 def test_other_hysteresis_families_come_out_nothing_missing(null_reports):
     gaps = {family: rep["baseline"]["gap_to_noise"] for family, rep in null_reports.items()}
