@@ -5,8 +5,10 @@ process, default ``--renders key``, every core) and reads the stage times it rec
 ``manifest.json`` (``timings``: ``simulate_s`` = sample, identification and scans; ``metrics_s`` =
 scores; ``report_s`` = every file, figure, render and the report; ``total_s`` = from the
 command's start, after Python and afmsim are imported, to the manifest) plus the process's whole
-wall time (``wall_s``, imports included). The main job also runs with ``--workers 1``: the scans'
-parallel speed-up, and a check that both give the same ``metrics.json``. Targets (issue 14, on the
+wall time (``wall_s``, imports included) and CPU time (``cpu_s``: user + system of the process and
+all its workers; unlike the wall times it hardly depends on the machine's load). The main job
+also runs with ``--workers 1``: the scans' parallel speed-up, and a check that both give the same
+``metrics.json``. Targets (issue 14, on the
 2-core machine): quick ``total_s`` ≤ 3 × its ``simulate_s``; main job ``report_s`` ≤ its
 ``simulate_s``. The machine may be shared: the load average around each case is recorded.
 Writes ``benchmarks/results/run.json``.
@@ -19,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -37,18 +40,26 @@ def run_case(scenario: str, *extra: str) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "run"
         load_before = os.getloadavg()[0]
+        cpu_before = _children_cpu()
         start = time.perf_counter()
         subprocess.run([sys.executable, "-m", "afmsim", "run", str(ROOT / scenario), "--out", str(out), "-q", *extra],
                        check=True, capture_output=True, cwd=ROOT)
         wall = time.perf_counter() - start
+        cpu = _children_cpu() - cpu_before
         timings = json.loads((out / "manifest.json").read_text())["timings"]
         metrics = json.loads((out / "metrics.json").read_text())["controllers"]
-    return {**timings, "wall_s": wall, "load_before": load_before, "load_after": os.getloadavg()[0],
+    return {**timings, "wall_s": wall, "cpu_s": cpu, "load_before": load_before, "load_after": os.getloadavg()[0],
             "_metrics": metrics}
 
 
+def _children_cpu() -> float:
+    """CPU seconds (user + system) of every finished child process and its descendants."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def summary(cases: list[dict]) -> dict:
-    keys = ("simulate_s", "metrics_s", "report_s", "total_s", "wall_s")
+    keys = ("simulate_s", "metrics_s", "report_s", "total_s", "wall_s", "cpu_s")
     return {"median": {k: statistics.median(c[k] for c in cases) for k in keys},
             "runs": [{k: v for k, v in c.items() if not k.startswith("_")} for c in cases]}
 

@@ -254,13 +254,16 @@ def _draw_blank(_hmap, path):
 
 
 def test_a_render_process_that_crashes_leaves_a_warning_and_no_partial_file(tmp_path):
-    """The renders run in a forked process of their own: its crash is a one-line warning, the
-    caller lives on, and no partial render file is left."""
+    """The renders run in a forked process of their own: its crash is a one-line warning naming
+    the signal, the caller lives on, and no partial render file is left."""
+    from functools import partial
+
     from afmsim.report.run_output import start_renders
 
     target = tmp_path / "render_none_trace.png"
-    paths, warning = start_renders([(_write_then_crash, (None, target))])()
-    assert paths == [] and "crashed" in warning and "3D renders skipped" in warning
+    paths, warning = start_renders(partial(_write_then_crash, None, target), [target])()
+    assert paths == [] and "signal 11" in warning and "3D renders skipped" in warning
     assert not target.exists()
-    paths, warning = start_renders([(_draw_blank, (None, tmp_path / "render_sample.png"))])()
+    blank = tmp_path / "render_sample.png"
+    paths, warning = start_renders(partial(_draw_blank, None, blank), [blank])()
     assert paths == [] and "came out blank" in warning and "\n" not in warning

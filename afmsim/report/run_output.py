@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import multiprocessing
 import time
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +19,7 @@ from .document import best_controller, write_report
 from .figures import plot_trace_retrace, run_colour_scales
 from .gwy import write_gwy
 from .paper_figures import plot_binarized, plot_scan_figure
-from .renders import render_jobs, render_unavailable
+from .renders import render_jobs, render_names, render_unavailable
 from .tables import nsl2_markdown, write_nsl2_table
 
 __all__ = ["write_run", "gwy_channels", "start_renders", "RENDER_CHOICES"]
@@ -84,11 +84,11 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
                             {"title": f"{scenario.name}: binarized images used for NSL2 (experiment 1)"}))
     ticker = _Ticker(progress)
     written, warnings = [folder / "metrics.json", folder / "scenario.yaml"], []
-    views = [] if renders == "none" else render_jobs(pairs, result.truth, result.mesh, folder, name=scenario.name,
-                                                      which=renders, best=best)
-    if progress is not None and views:
-        progress("renders", 0, len(views))
-    renders_done = start_renders(views)
+    render_files = [] if renders == "none" else [folder / n for n in render_names(list(pairs), renders, best)]
+    if progress is not None and render_files:
+        progress("renders", 0, len(render_files))
+    renders_done = start_renders(partial(_draw_renders, pairs, result.truth, result.mesh, folder, scenario.name,
+                                         renders, best), render_files)
     with worker_pool(max(1, workers)) as executor:
         figures = ordered_map(executor, _call, figure_jobs, ticker("figures", len(figure_jobs)), wait=False)
         written += _write_arrays(result, folder, scenario_yaml)
@@ -96,8 +96,8 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
     render_paths, warning = renders_done()
     if warning:
         warnings.append(warning)
-    elif progress is not None and views:
-        progress("renders", len(views), len(views))
+    elif progress is not None and render_files:
+        progress("renders", len(render_files), len(render_files))
     written += figure_paths + render_paths
     if progress is not None:
         progress("report", 0, 1)
@@ -117,45 +117,62 @@ def _call(func, args, kwargs):
     return func(*args, **kwargs)
 
 
-def _render_all(views) -> list[Path]:
-    """Draw ``(function, args)`` render jobs one after the other, in one process."""
-    return [func(*args) for func, args in views]
+def _draw_renders(pairs, truth, mesh, folder, name, which, best) -> list[Path]:
+    """The run's renders (:func:`afmsim.report.renders.render_jobs`), one after the other: VTK's
+    first-render set-up (EGL context, shaders; about two renders' worth) is paid once."""
+    return [func(*args) for func, args in render_jobs(pairs, truth, mesh, folder, name=name, which=which, best=best)]
 
 
-def start_renders(views):
-    """Start the render jobs of :func:`afmsim.report.renders.render_jobs` (``(function, args)``,
-    ``args[1]`` the PNG path) and return a function that waits for them: ``(paths, warning)``.
+def start_renders(draw, files) -> Callable[[], tuple[list[Path], str | None]]:
+    """Run ``draw()`` (it writes the PNGs ``files`` and returns their paths) and return a function
+    that waits for it: ``(paths, warning)``.
 
-    They are drawn one after the other (VTK's first-render set-up, EGL context and shaders, costs
-    about two renders and is paid once) in one forked process of their own, beside the figures: a
-    GL stack that crashes or draws blank kills or fails that process only, and the run goes on with
-    ``warning`` (one line, why) instead of renders, their partial files removed. That process is the
-    rendering check, so a run needs no separate probe (:func:`afmsim.render.rendering_available`,
-    used where ``fork`` is missing).
+    ``draw`` runs in a forked process of its own, beside the figures; it imports pyvista/VTK there,
+    off the caller's path. A GL stack that crashes or draws blank kills or fails that process only:
+    the run goes on with ``warning`` (one line, why) and no renders, partial files removed. That
+    process is the rendering check, so a run needs no separate probe
+    (:func:`afmsim.render.rendering_available`, used where ``fork`` is missing).
     """
-    if not views:
+    if not files:
         return lambda: ([], None)
     if "fork" not in multiprocessing.get_all_start_methods():  # pragma: no cover - not on Linux
         warning = render_unavailable()
-        paths = [] if warning else _render_all(views)
+        paths = [] if warning else draw()
         return lambda: (paths, warning)
-    executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork"))
-    future = executor.submit(_render_all, views)
+    receive, send = multiprocessing.Pipe(duplex=False)
+    process = multiprocessing.get_context("fork").Process(target=_draw_and_report, args=(draw, send), daemon=True)
+    process.start()
+    send.close()
 
     def wait():
         try:
-            return future.result(), None
-        except BrokenProcessPool:
-            why = "the rendering process crashed (GL stack)"
-        except Exception as error:  # noqa: BLE001 - any failure to render is reported, the run stands
-            why = f"{type(error).__name__}: {(str(error).splitlines() or [''])[0]}"
-        finally:
-            executor.shutdown()
-        for _, args in views:
-            Path(args[1]).unlink(missing_ok=True)
+            answer = receive.recv()
+        except EOFError:  # the process died without a word
+            answer = None
+        process.join()
+        if isinstance(answer, list) and process.exitcode == 0:
+            return answer, None
+        if isinstance(answer, str):
+            why = answer
+        elif process.exitcode is not None and process.exitcode < 0:
+            why = f"the rendering process was killed by signal {-process.exitcode} (GL stack crashed)"
+        else:
+            why = f"the rendering process failed (exit {process.exitcode})"
+        for path in files:
+            Path(path).unlink(missing_ok=True)
         return [], (f"3D renders skipped: off-screen rendering failed here ({why}) — on Debian/Ubuntu install "
                     "libegl1 and libgl1-mesa-dri")
     return wait
+
+
+def _draw_and_report(draw, send) -> None:
+    """In the render process: ``draw()``, then send its paths, or the one-line reason it failed."""
+    try:
+        answer = draw()
+    except Exception as error:  # noqa: BLE001 - any failure to render is reported, the run stands
+        answer = f"{type(error).__name__}: {(str(error).splitlines() or [''])[0]}"
+    send.send(answer)
+    send.close()
 
 
 class _Ticker:
