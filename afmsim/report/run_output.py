@@ -89,11 +89,13 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
         progress("renders", 0, len(render_files))
     renders_done = start_renders(partial(_draw_renders, pairs, result.truth, result.mesh, folder, scenario.name,
                                          renders, best), render_files)
-    with worker_pool(max(1, workers)) as executor:
-        figures = ordered_map(executor, _call, figure_jobs, ticker("figures", len(figure_jobs)), wait=False)
-        written += _write_arrays(result, folder, scenario_yaml)
-        figure_paths = figures()
-    render_paths, warning = renders_done()
+    try:
+        with worker_pool(max(1, workers)) as executor:
+            figures = ordered_map(executor, _call, figure_jobs, ticker("figures", len(figure_jobs)), wait=False)
+            written += _write_arrays(result, folder, scenario_yaml)
+            figure_paths = figures()
+    finally:  # the render process is waited for even when a figure fails: nothing writes after we return
+        render_paths, warning = renders_done()
     if warning:
         warnings.append(warning)
     elif progress is not None and render_files:
