@@ -124,7 +124,7 @@ def table2(result: IdentificationResult) -> str:
     if "spi" in names and "diapi" in names:
         ratio = summarize(result.errors["diapi"]["rms_V"])["mean"] / summarize(result.errors["spi"]["rms_V"])["mean"]
         lines.append(f"DIAPI/SPI mean RMS ratio: {ratio:.2f} (paper {TABLE2_RATIO:.2f}; the plant's skew is calibrated "
-                     "to Table 2's SPI error, see README 'Reference results')")
+                     "to Table 2's SPI error, see docs/reference-results.md)")
     return "\n".join(lines)
 
 
@@ -156,7 +156,7 @@ def table2_laws(results: dict) -> str:
                   for law, r in results.items()}
         lines.append("DIAPI/SPI mean RMS ratio: " + ", ".join(f"{law} {v:.2f}" for law, v in ratios.items())
                      + f" (paper {TABLE2_RATIO:.2f}; each plant's skew is calibrated to Table 2's SPI error, "
-                       "see README 'Reference results')")
+                       "see docs/reference-results.md)")
     return "\n".join(lines)
 
 

@@ -65,7 +65,7 @@ FIG15_PITCHES_M = {"trace_left": 3.6e-6, "trace_right": 3.2e-6}
 
 #: The paper *results* that afmsim's plant constants were tuned to reproduce: constant → target.
 #: Agreement with these is calibration, not a prediction. (The 100 µm at 9.1 V sensitivity is set
-#: from the paper's protocol, §3.2, not from a result; README "Reference results" lists every tuned
+#: from the paper's protocol, §3.2, not from a result; docs/reference-results.md lists every tuned
 #: constant with its target, datasheet ones included.)
 CALIBRATION_TARGETS = {
     "AsymmetricPreisach.skew": "Table 2: SPI mean RMS error 0.080 V",

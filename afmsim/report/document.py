@@ -150,7 +150,7 @@ def reading(metrics: dict, scenario) -> list[str]:
                 "travel, so the stage runs on minor loops. DIAPI switches between separate trace and retrace weights "
                 "(ω_af, ω_ab, eqs. 5–7) with the direction of motion, so its drive jumps by Σ(ω_af − ω_ab)·H at every "
                 f"reversal; the least-squares fit makes that jump vanish only at the ends of the identification loop; "
-                f"{plant} (README \"Reference results\"). The paper does not state its scan size.")
+                f"{plant} (docs/reference-results.md). The paper does not state its scan size.")
         else:
             out.append(f"The scan spans {span / UM:g} µm of the stage's {STAGE_TRAVEL_M / UM:.0f} µm travel: DIAPI's "
                        "direction-switched weights transfer from the identification loop, as in the paper.")

@@ -21,9 +21,9 @@ Why Preisach is the default: its relay density directly sets (i) how the loop gr
 "open-loop hysteresis", H), (ii) where along the travel the loop is wide (asymmetry, paper Fig. 2 /
 Table 1, M) and (iii) wiping-out and closed minor loops — the classical description of
 piezo-ceramic stacks. Which law a given stage follows is a measurement (``afmsim diagnose`` on a
-loop record with minor loops, :mod:`afmsim.diagnosis.minor_loop`; README "Reference results").
+loop record with minor loops, :mod:`afmsim.diagnosis.minor_loop`; docs/reference-results.md).
 
-Calibration (README "Reference results", "what is calibrated to what"; :data:`afmsim.paper.CALIBRATION_TARGETS`):
+Calibration (docs/reference-results.md, "What is calibrated to what"; :data:`afmsim.paper.CALIBRATION_TARGETS`):
 both plants are scaled to 100 µm at 9.1 V (§3.2) and their loop widths set from the datasheet
 (10–15 % of travel at full range). Their asymmetry (``skew``) is set from paper Table 2 — with the
 defaults and all physics on, the paper's identification gives SPI 0.079 V / DIAPI 0.023 V RMS
@@ -190,7 +190,7 @@ class AsymmetricPreisach(HysteresisModel):
 
         μ ∝ (w/w0)^p · exp(−w/w0) · (1 + skew·(2c/U − 1))_+ · (1 + width_skew·(2c/U − 1)·w/w0)_+
 
-    Parameters (targets in README "Reference results", table "what is calibrated to what")
+    Parameters (targets in docs/reference-results.md, table "What is calibrated to what")
     ----------
     sensitivity_m_per_V : float
         Nominal sensitivity, m/V. Default 100 µm / 9.1 V ≈ 10.99 µm/V (paper §3.2: 100 µm loop at
@@ -306,7 +306,7 @@ class AsymmetricDuhem(HysteresisModel):
     exactly (from rest too), and periodic inputs settle on closed loops (no ratchet); there is no
     return-point memory inside the band. Not a Prandtl–Ishlinskii model (no inverse crime).
 
-    Parameters (targets in README "Reference results", table "what is calibrated to what")
+    Parameters (targets in docs/reference-results.md, table "What is calibrated to what")
     ----------
     sensitivity_m_per_V, calibration_amplitude_V, u_max_V : see :class:`AsymmetricPreisach`
         (100 µm at 9.1 V, paper §3.2; 10 V input range, §3.1).

@@ -1,7 +1,7 @@
 """Set a plant's asymmetry (``skew``) from a measured loop's shape instead of from paper Table 2.
 
-The default plants take ``skew`` from the paper's Table 2 (a calibration: README "Reference
-results"). :func:`skew_from_loop` sets it from other evidence — the shape of a measured steady
+The default plants take ``skew`` from the paper's Table 2 (a calibration:
+docs/reference-results.md). :func:`skew_from_loop` sets it from other evidence — the shape of a measured steady
 loop, both axes normalised to [0, 1], so only the shape counts (its width and asymmetry), not the
 stage's travel or voltage range. The measured cycle's drive is mapped onto 0 → ``calibration
 amplitude`` (9.1 V), the plant is run from rest through three cycles of it, and the last cycle is
