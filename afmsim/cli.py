@@ -316,7 +316,7 @@ def diagnose(
     Python: afmsim.diagnosis.diagnose_loops(path, scenario=...) or diagnose_images(path, scenario=...).
     """
     from afmsim.diagnosis import diagnose_images, diagnose_loops
-    from afmsim.diagnosis.images import instrument_pair
+    from afmsim.diagnosis.images.record import instrument_pair
     from afmsim.readers import reader_for
     from afmsim.runio import default_run_dir, run_folder, write_json
 

@@ -9,7 +9,7 @@ from scipy.signal import lfilter
 
 from afmsim.diagnosis import diagnose_loops, load_record, validate_diagnosis
 from afmsim.diagnosis.plausible import implausible
-from afmsim.diagnosis.validation import _dynamics, _plant, case_plan, excitation, make_case
+from afmsim.diagnosis.loops.validation import _dynamics, _plant, case_plan, excitation, make_case
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 RECORD = SHARED / "real-data" / "piezo-sine-150V-1Hz.csv"

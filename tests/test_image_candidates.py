@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from afmsim.compensation import build_controller
-from afmsim.diagnosis.image_attribute import diagnose_image_record
-from afmsim.diagnosis.images import load_images
+from afmsim.diagnosis.images.attribute import diagnose_image_record
+from afmsim.diagnosis.images.record import load_images
 from afmsim.diagnosis.plausible import implausible
 from afmsim.experiment import build_sample, scan_geometry
 from afmsim.scan import ZFeedback, ZStage, raster_trajectory, scan_frame
@@ -80,7 +80,7 @@ def test_an_implausibly_large_bow_is_flagged():
 
 def test_a_gap_in_a_few_lines_is_located_there():
     """A glitch in one line of forty (a tip jump) holds most of the gap; white noise spreads over all lines."""
-    from afmsim.diagnosis.image_localise import localise_image
+    from afmsim.diagnosis.images.localise import localise_image
 
     rng = np.random.default_rng(3)
     model = np.cumsum(np.ones((40, 30)), axis=1)
@@ -97,7 +97,7 @@ def test_a_gap_in_a_few_lines_is_located_there():
 def test_line_offsets_between_the_directions_are_measured_not_scored():
     """Random per-line offsets (σ 2 nm, datasheet 0.5–5 nm) on the retrace of a tilted grating that changes
     along y: the jitter is recovered; without them it reads below the datasheet's range."""
-    from afmsim.diagnosis.image_attribute import line_offsets
+    from afmsim.diagnosis.images.attribute import line_offsets
 
     rng = np.random.default_rng(8)
     x, y = np.meshgrid(np.linspace(0, 1, 96), np.linspace(0, 1, 80))

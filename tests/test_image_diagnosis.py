@@ -9,9 +9,9 @@ from typer.testing import CliRunner
 
 from afmsim.cli import app
 from afmsim.diagnosis import diagnose_images, load_images, validate_image_diagnosis
-from afmsim.diagnosis.image_model import Layout, ZLoop
-from afmsim.diagnosis.image_reference import Surface, parabolic_dilation
-from afmsim.diagnosis.image_validation import image_case_plan, make_image_case
+from afmsim.diagnosis.images.model import Layout, ZLoop
+from afmsim.diagnosis.images.reference import Surface, parabolic_dilation
+from afmsim.diagnosis.images.validation import image_case_plan, make_image_case
 from afmsim.report.gwy import write_gwy
 from afmsim.samples.heightmap import HeightMap
 

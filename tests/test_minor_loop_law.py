@@ -1,4 +1,4 @@
-"""afmsim.diagnosis.minor_loop names the minor-loop law a record supports, on held-out data.
+"""afmsim.diagnosis.loops.minor_loop names the minor-loop law a record supports, on held-out data.
 
 Records are simulated from each law with the other law's code absent from the generator, by two
 generators per law: the afmsim stage with all its physics (creep, drift, amplifier, resonance,
@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from afmsim.diagnosis.attribute import noise_floor
-from afmsim.diagnosis.loops import load_record
-from afmsim.diagnosis.minor_loop import interior_reversals, minor_loop_excitation, minor_loop_law
+from afmsim.diagnosis.loops.attribute import noise_floor
+from afmsim.diagnosis.loops.minor_loop import interior_reversals, minor_loop_excitation, minor_loop_law
+from afmsim.diagnosis.loops.record import load_record
 
 
 def _stage_record(law, seed):

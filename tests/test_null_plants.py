@@ -1,6 +1,6 @@
 """Null records from hysteresis families other than the baseline's (issue 11, point 3).
 
-The generators (:mod:`afmsim.diagnosis.null_plants`) are checked to be rate-independent and
+The generators (:mod:`afmsim.diagnosis.loops.null_plants`) are checked to be rate-independent and
 hysteretic; the diagnosis of their records (no added effect) must never call a named effect the
 explanation, and — the target, not met yet — should find nothing missing. Seed 2026 was not used
 while developing (development seeds: 100–103).
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from afmsim.diagnosis import diagnose_loops
-from afmsim.diagnosis.null_plants import NULL_FAMILIES, null_plant
-from afmsim.diagnosis.validation import excitation
+from afmsim.diagnosis.loops.null_plants import NULL_FAMILIES, null_plant
+from afmsim.diagnosis.loops.validation import excitation
 
 FRESH_SEED = 2026
 

@@ -1,6 +1,6 @@
 """The attribution engine shared by the loop and the image diagnosis.
 
-A *front* (loops: :mod:`.attribute`, images: :mod:`.image_attribute`) supplies its data model, its
+A *front* (loops: :mod:`.loops.attribute`, images: :mod:`.images.attribute`) supplies its data model, its
 candidates and its plots through the small :class:`Front` interface; the engine does the rest:
 
 1. greedy attribution (:func:`attribute`): every remaining candidate is added to the current

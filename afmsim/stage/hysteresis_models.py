@@ -21,7 +21,7 @@ Why Preisach is the default: its relay density directly sets (i) how the loop gr
 "open-loop hysteresis", H), (ii) where along the travel the loop is wide (asymmetry, paper Fig. 2 /
 Table 1, M) and (iii) wiping-out and closed minor loops — the classical description of
 piezo-ceramic stacks. Which law a given stage follows is a measurement (``afmsim diagnose`` on a
-loop record with minor loops, :mod:`afmsim.diagnosis.minor_loop`; docs/reference-results.md).
+loop record with minor loops, :mod:`afmsim.diagnosis.loops.minor_loop`; docs/reference-results.md).
 
 Calibration (docs/reference-results.md, "What is calibrated to what"; :data:`afmsim.paper.CALIBRATION_TARGETS`):
 both plants are scaled to 100 µm at 9.1 V (§3.2) and their loop widths set from the datasheet

@@ -10,7 +10,7 @@ Protocol of :func:`diagnose_images` (the image twin of :func:`~afmsim.diagnosis.
 2. baseline = rate-independent hysteresis per scan direction + slow-axis scale/curvature, the
    scenario's tip and Z loop (ideal without a scenario), plus every effect the scenario already
    switches on (fitted); heights are compared line-levelled;
-3. the held-out residual is localised (:func:`~afmsim.diagnosis.image_localise.localise_image`);
+3. the held-out residual is localised (:func:`~afmsim.diagnosis.images.localise.localise_image`);
 4. greedy attribution by the engine shared with loops (:mod:`~afmsim.diagnosis.engine`), with the same test (:func:`~afmsim.diagnosis.engine.significance`:
    ΔBIC on the correlation-discounted held-out sample count with the candidate's extra parameters,
    ≥ 70 % of 10 held-out blocks improved, ≥ 3 % RMS drop and ≥ 15 % of the gap above the noise
@@ -19,7 +19,7 @@ Protocol of :func:`diagnose_images` (the image twin of :func:`~afmsim.diagnosis.
    (Z-loop details, sampling of sharp edges); an effect must in addition shrink the current held-out
    RMS gap by ≥ 20 % and remove ≥ 0.5 % of the baseline's held-out mean square (practical
    significance; both thresholds were set on the development seeds, not on the reported run).
-   Effects whose signature the current model already has (:func:`~afmsim.diagnosis.image_fit.redundancy`
+   Effects whose signature the current model already has (:func:`~afmsim.diagnosis.images.fit.redundancy`
    < 0.05) are not fitted but reported ``indistinguishable_from``; ties within 2 BIC units go to the
    first name in canonical order (``ambiguous_with`` lists the others). Every remaining candidate is
    tried again in each round: a large effect can mask a smaller one until it is modelled;
@@ -43,13 +43,13 @@ from numpy.polynomial import legendre
 
 from afmsim.reproducible import single_blas_thread
 
-from .engine import Front, Rules, attribute, conclude, effect_lines, noise_floor, ratio_text, rms, verdict_text
-from .image_fit import ImageDesign, ImageFit, fit_image, redundancy
-from .image_localise import localise_image
-from .image_model import Layout, ZLoop
-from .image_reference import scenario_reference
-from .images import ImageRecord, load_images
-from .scenario_effects import as_scenario, modelled_effects
+from ..engine import Front, Rules, attribute, conclude, effect_lines, noise_floor, ratio_text, rms, verdict_text
+from ..scenario_effects import as_scenario, modelled_effects
+from .fit import ImageDesign, ImageFit, fit_image, redundancy
+from .localise import localise_image
+from .model import Layout, ZLoop
+from .record import ImageRecord, load_images
+from .reference import scenario_reference
 
 __all__ = ["diagnose_images", "diagnose_image_record", "build_design", "split_lines", "effect_params", "sensor_noise",
            "line_offsets",

@@ -5,7 +5,7 @@ split and the same creep treatment for both), and the law with the smaller held-
 named when the other's gap is at least :data:`DECISIVE_RATIO` times larger:
 
 * **Preisach law** — ``x = b0 + b1·v + Σ μ_ij s_ij(v)``, smoothed relays on the training voltage
-  range (:func:`afmsim.diagnosis.model.relay_features`) plus relays whose down-threshold lies below
+  range (:func:`afmsim.diagnosis.loops.model.relay_features`) plus relays whose down-threshold lies below
   it (:func:`latched_relays`), μ ≥ 0. After a reversal the branch is set
   by the stored reversal points: wiping-out, congruent minor loops.
 * **Duhem law** (Coleman–Hodgdon form) — ``dx/dû = g(û) + σ·α(û)·(f(û) − x)`` with σ the sign of
@@ -122,7 +122,7 @@ def _duhem_columns(u, knots, rate, inverse, out):  # pragma: no cover - compiled
 
 def latched_relays(v, v_lo: float, v_hi: float, n_levels: int = N_LEVELS) -> np.ndarray:
     """Relays whose down-threshold lies below the recorded range (M, n_levels): once switched on
-    (smoothed over one cell, as :func:`~afmsim.diagnosis.model.relay_features`) they stay on. The
+    (smoothed over one cell, as :func:`~afmsim.diagnosis.loops.model.relay_features`) they stay on. The
     Preisach plane of a stage is not bounded by the record's voltages: a record that does not start
     de-energised, or a stage whose loops do not close at the lowest voltage, needs them."""
     u = (np.asarray(v, dtype=np.float64) - v_lo) / (v_hi - v_lo) * n_levels
@@ -216,7 +216,7 @@ def minor_loop_law(t, v, x, train, sigma: float) -> dict:
     if reversals < MIN_INTERIOR_REVERSALS or held.sum() < 50:
         out["note"] = (f"the record has {reversals} reversal(s) inside its voltage range and {int(held.sum())} "
                        "scored held-out samples: without minor loops both laws fit alike; record minor loops "
-                       "(afmsim.diagnosis.minor_loop.minor_loop_excitation)")
+                       "(afmsim.diagnosis.loops.minor_loop.minor_loop_excitation)")
         return out
     dt = float((t[-1] - t[0]) / (t.size - 1))
     vc = np.clip(v, lo, hi)

@@ -1,4 +1,4 @@
-"""Fitting the image forward model (:mod:`.image_model`) to a trace/retrace pair, training lines only.
+"""Fitting the image forward model (:mod:`.model`) to a trace/retrace pair, training lines only.
 
 Parameters: θ = [position coefficients, height gain, log10 of the non-linear effect parameters]
 (``z_feedback``: ki; ``tip``: extra paraboloid radius; ``dynamics``: f0 and ζ), all fitted jointly
@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from .image_model import Column, Layout, ZLoop, baseline_columns, effect_columns, filter_columns, resonance
-from .image_reference import Surface, parabolic_dilation, trace_reference
+from .model import Column, Layout, ZLoop, baseline_columns, effect_columns, filter_columns, resonance
+from .reference import Surface, parabolic_dilation, trace_reference
 
 __all__ = ["ImageDesign", "ImageFit", "fit_image", "redundancy", "LINEAR_EFFECTS"]
 

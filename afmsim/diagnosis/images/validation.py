@@ -8,7 +8,7 @@ linear thermal drift, amplifier + mechanical resonance, X↔Y coupling (:mod:`af
 blunter paraboloid tip (:func:`afmsim.tip.dilate`), a lower Z-loop integral gain — and diagnoses
 the images with the case's scenario *without* the effect (stage effects off, the nominal 20 nm
 tip, ki = 3000 s⁻¹). The diagnosis' candidates are its own parametric terms
-(:mod:`~afmsim.diagnosis.image_model`), not these code paths.
+(:mod:`~afmsim.diagnosis.images.model`), not these code paths.
 
 Samples per effect: drift and cross-coupling only on micro-lens arrays — on a grating whose lines
 run along y both are the same x-skew (the report then says ``ambiguous_with``), so a grating case
@@ -37,10 +37,10 @@ from afmsim.scenario import parse_scenario
 from afmsim.stage import default_stage
 from afmsim.tip import dilate, mlct_tip
 
-from .engine import STATUSES
-from .image_attribute import build_design, diagnose_image_record
-from .image_fit import fit_image
-from .images import load_images
+from ..engine import STATUSES
+from .attribute import build_design, diagnose_image_record
+from .fit import fit_image
+from .record import load_images
 
 __all__ = ["validate_image_diagnosis", "image_case_plan", "make_image_case", "IMAGE_MAGNITUDES"]
 

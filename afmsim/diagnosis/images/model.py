@@ -7,7 +7,7 @@ For every sample the model computes the actual tip position
     x = F(x_int + B_x θ),   y = F(y_int + B_y θ)
 
 — linear in the position parameters θ; F is the identity, or the ``dynamics`` resonance — reads
-the reference surface there (:class:`~afmsim.diagnosis.image_reference.Surface`), runs the Z loop
+the reference surface there (:class:`~afmsim.diagnosis.images.reference.Surface`), runs the Z loop
 (:class:`ZLoop`) along time and averages each pixel's samples; heights are ``g·z + h0`` (Z
 calibration gain and offset, both fitted).
 

@@ -36,10 +36,10 @@ from scipy.signal import bilinear, butter, fftconvolve, lfilter, sosfiltfilt
 
 from afmsim.stage import AsymmetricPreisach, AxisParams, PiezoAxis
 
+from ..engine import STATUSES
 from .attribute import diagnose_record
-from .engine import STATUSES
-from .loops import load_record
 from .model import Design, ModelSpec, fit_model
+from .record import load_record
 
 __all__ = ["validate_diagnosis", "make_case", "case_plan", "EXCITATIONS"]
 

@@ -2,14 +2,14 @@
 
 Protocol of :func:`diagnose_loops`:
 
-1. the record is validated/decimated (:func:`~afmsim.diagnosis.loops.load_record`); the first
+1. the record is validated/decimated (:func:`~afmsim.diagnosis.loops.record.load_record`); the first
    ``train_fraction`` (60 %) of the time is the training part, the rest is held out and seen by
    no fit;
    held-out samples whose voltage leaves the training range (by > 1 %) are not scored (no
    rate-independent model can know untrained relays); the scored fraction is reported;
 2. baseline = rate-independent hysteresis (relay Preisach grid, or play operators with
    ``baseline="symmetric"``) + offset + linear term, fitted on the training part;
-3. the held-out residual is localised (:func:`~afmsim.diagnosis.localise.localise`);
+3. the held-out residual is localised (:func:`~afmsim.diagnosis.loops.localise.localise`);
 4. greedy attribution by the shared engine (:mod:`~afmsim.diagnosis.engine`): each remaining
    candidate is added to the current model, fitted on the training part, and scored on the
    held-out part; the best significant one (:func:`~afmsim.diagnosis.engine.significance`, σ from
@@ -30,11 +30,11 @@ import numpy as np
 
 from afmsim.reproducible import single_blas_thread
 
-from .engine import Front, Rules, attribute, conclude, effect_lines, noise_floor, ratio_text, rms, verdict_text
+from ..engine import Front, Rules, attribute, conclude, effect_lines, noise_floor, ratio_text, rms, verdict_text
 from .localise import localise
 from .minor_loop import minor_loop_law
-from .loops import LoopRecord, load_record
 from .model import Design, FittedModel, ModelSpec, fit_model
+from .record import LoopRecord, load_record
 
 __all__ = ["diagnose_loops", "diagnose_record", "LoopFront"]
 
@@ -185,7 +185,7 @@ def diagnose_loops(path_or_arrays, *, rng_seed: int = 0, figure_path=None, basel
     Returns ``(report, summary)``; ``report`` is JSON-serialisable (``diagnosis.json``).
     ``rng_seed`` is recorded for provenance; the diagnosis itself is deterministic.
     """
-    from .scenario_effects import as_scenario, modelled_effects
+    from ..scenario_effects import as_scenario, modelled_effects
 
     modelled = modelled_effects(as_scenario(scenario))
     rec = load_record(path_or_arrays)
