@@ -68,6 +68,7 @@ def test_report_structure_and_figure(tmp_path):
     for key in ("baseline", "final", "unexplained"):
         assert rep[key]["gap_to_noise"] == pytest.approx(rep[key]["rms_gap"] / rep["baseline"]["noise_floor"], rel=1e-3)
     assert "Verdict" in summary and (tmp_path / "d.png").stat().st_size > 1000
+    assert summary.splitlines()[-1] == "Minor-loop law: " + rep["minor_loop_law"]["note"]
 
 
 @pytest.mark.parametrize("fs, f_amp", [(2000.0, 60.0), (1000.0, 25.0)])

@@ -148,6 +148,8 @@ def loop_summary(rep: dict) -> str:
     lines.append("Where: " + where_text(rep["where"]))
     lines += effect_lines(rep["effects"])
     lines.append(verdict_text(rep, where_text))
+    if "minor_loop_law" in rep:
+        lines.append("Minor-loop law: " + rep["minor_loop_law"]["note"])
     return "\n".join(lines)
 
 
