@@ -40,7 +40,7 @@ def test_same_seed_same_result():
 @pytest.mark.parametrize("law", ["preisach", "duhem"])
 def test_both_plant_laws_hold_their_table2_calibration(law):
     """Each plant's skew was set so that SPI's mean RMS error is paper Table 2's 0.080 V (a
-    calibration, README "what is calibrated to what", made with ``afmsim identify``'s default seed 0
+    calibration, docs/reference-results.md "What is calibrated to what", made with ``afmsim identify``'s default seed 0
     — the training record's noise moves SPI's error by ~0.003 V between seeds); this pins it.
     DIAPI's error then follows."""
     from afmsim.stage import default_stage

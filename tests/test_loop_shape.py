@@ -38,7 +38,7 @@ def test_mean_cycle_rejects_a_record_without_a_whole_period():
 @pytest.mark.skipif(not REAL.exists(), reason="../shared/real-data not present")
 def test_the_real_piezo_loop_is_nearly_centrally_symmetric():
     """The real record (a ±150 V bipolar sine) gives the Preisach plant no asymmetry: skew 0 fits
-    its shape best — far from the Table 2 calibration 0.6 (README "Reference results")."""
+    its shape best — far from the Table 2 calibration 0.6 (docs/reference-results.md)."""
     t, v, x = np.genfromtxt(REAL, delimiter=",", skip_header=1).T
     v_cycle, x_cycle = mean_cycle(t, v, x, period_s=1.0, start_s=4.0)
     skew, errors = skew_from_loop(AsymmetricPreisach(), v_cycle, x_cycle, skews=np.linspace(-1, 1, 21))

@@ -56,7 +56,7 @@ def test_no_named_effect_explains_a_null(null_reports):
 
 
 @pytest.mark.xfail(strict=True, reason="issue 11.3 not met: the 16-level relay-grid baseline leaves 5-19x the noise floor "
-                                       "on other hysteresis families (see README, 'Status and honesty')")
+                                       "on other hysteresis families (see docs/diagnosis.md, 'Status and honesty')")
 def test_other_hysteresis_families_come_out_nothing_missing(null_reports):
     gaps = {family: rep["baseline"]["gap_to_noise"] for family, rep in null_reports.items()}
     assert all(g <= 2.0 for g in gaps.values()), gaps

@@ -4,7 +4,7 @@ ordering the paper's own protocol gives (DIAPI behind SPI and behind no compensa
 ``scenarios/microlens_full_range.yaml`` scans ~90 % of the 100 µm identification loop; there
 DIAPI's trace/retrace weights transfer to the scan and it must beat SPI by e_D ≥ 20 % (paper
 44.3 %), with both far below the uncompensated NSL2. A smaller copy (fewer pixels and lines, two
-experiments) keeps the test fast; the e_D of the bundled scenario is in README "Reference results".
+experiments) keeps the test fast; the e_D of the bundled scenario is in docs/reference-results.md.
 """
 
 from pathlib import Path
@@ -32,8 +32,7 @@ def test_full_range_microlens_reproduces_paper_ordering():
 @pytest.mark.parametrize("scenario", ["paper_protocol_microlens.yaml", "paper_protocol_microlens_duhem.yaml"])
 def test_paper_protocol_puts_diapi_behind_no_compensation_on_both_minor_loop_laws(scenario):
     """The paper's own protocol (identify once on the 100 µm, 9.1 V loop, scan 30 µm): on both plant
-    laws DIAPI's NSL2 is above SPI's *and* above the uncompensated scan's (README "Reference
-    results": full run 45,008 vs none 26,585 on Preisach, 88,814 vs 59,607 on Duhem). A reduced copy
+    laws DIAPI's NSL2 is above SPI's *and* above the uncompensated scan's (docs/reference-results.md: full run 45,008 vs none 26,585 on Preisach, 88,814 vs 59,607 on Duhem). A reduced copy
     (128 × 32 px, two experiments) keeps it fast."""
     base = load_scenario(SCENARIOS / scenario).model_dump(mode="json")
     small = {**base, "experiments": 2, "controllers": ["none", "spi", "diapi"],

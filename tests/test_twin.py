@@ -158,7 +158,7 @@ def test_scenario_runs_on_the_twin(tmp_path):
 
 @needs_real_afm
 def test_real_circles_predict_squares_holes():
-    """Issue 12's evidence on fewer lines (the first 48 of 256) to stay fast; the README gives the full figures."""
+    """Issue 12's evidence on fewer lines (the first 48 of 256) to stay fast; docs/instrument-twin.md gives the full figures."""
     circles = load_measured_pair(REAL_AFM / "circles.nid")
     squares = load_measured_pair(REAL_AFM / "squares_holes.nid")
     lines = slice(0, 48)

@@ -21,7 +21,7 @@ creeping record does not favour one of them.
 A record with fewer than :data:`MIN_INTERIOR_REVERSALS` reversals inside its voltage range (a
 single-amplitude loop from 0 V, such as the paper's identification loop) cannot tell the laws
 apart: from rest both close their loops at the ends. :func:`minor_loop_excitation` is the record
-to take instead: README "Reference results" ("Which minor-loop law does your stage follow?") says why.
+to take instead: docs/reference-results.md ("Which minor-loop law does your stage follow?") says why.
 """
 
 from __future__ import annotations
