@@ -175,7 +175,7 @@ def test_height_images_have_data_limits_and_out_of_range_markers():
     z[10:20, 10:20] += 300e-9             # a feature
     z[30:, :] -= 60e-9                     # a dip below the substrate: 25 % of the pixels
     trace, retrace = HeightMap(z, (1e-7, 1e-7)), HeightMap(z + 2e-9, (1e-7, 1e-7))
-    assert substrate_level(z) == pytest.approx(500e-9, abs=2e-9)   # the median of the pixels below the mean
+    assert substrate_level(z) == pytest.approx(500e-9, abs=2e-9)   # the commonest level below the mean, not the dip
     scale = run_colour_scales({"c": (trace, retrace)})
     low, high = scale.height_nm
     assert low < -55 and 295 < high < 305                         # from the data, not from a fixed 0
@@ -184,6 +184,23 @@ def test_height_images_have_data_limits_and_out_of_range_markers():
     assert shown.get_clim() == (low, high)
     assert tuple(shown.cmap.get_under()) != shown.cmap(0.0) and tuple(shown.cmap.get_over()) != shown.cmap(1.0)
     plt.close(fig)
+
+
+def test_substrate_of_a_lens_array_is_its_flat_level_not_pulled_by_the_flanks():
+    """Half the pixels below a lens array's mean lie on the lens flanks; the substrate is the flat."""
+    from afmsim.report.figures import substrate_level
+
+    rng = np.random.default_rng(5)
+    y, x = np.mgrid[0:128, 0:128] * 0.1e-6                       # 12.8 µm field, 0.1 µm pixels
+    z = np.zeros_like(x)
+    for cx in (3.2e-6, 9.6e-6):
+        for cy in (3.2e-6, 9.6e-6):
+            r2 = (x - cx) ** 2 + (y - cy) ** 2
+            z = np.maximum(z, 1e-6 * np.clip(1 - r2 / (3.2e-6) ** 2, 0, None))   # paraboloid caps, 1 µm high, 25 % flat
+    z += 120e-9 + rng.normal(0, 0.5e-9, z.shape)
+    below = z[z < z.mean()]
+    assert np.median(below) > 120e-9 + 10e-9                      # the plain median of the lower part is biased
+    assert substrate_level(z) == pytest.approx(120e-9, abs=1e-9)
 
 
 def test_cli_run_records_timings_and_renders_none_writes_no_render(tmp_path):
@@ -223,6 +240,7 @@ def test_gwy_holds_every_experiment_with_line_rate_and_scenario(tmp_path):
 
 
 def test_key_renders_share_one_exaggeration_and_the_substrate_reference(run_dir):
+    from afmsim.report.figures import substrate_level
     from afmsim.report.renders import load_run_arrays, render_jobs
 
     _, images, truth = load_run_arrays(run_dir)
@@ -232,8 +250,7 @@ def test_key_renders_share_one_exaggeration_and_the_substrate_reference(run_dir)
     common = [args[3] for _, args in jobs]
     assert len({c["z_exaggeration"] for c in common}) == 1 and len({c["z_range_m"] for c in common}) == 1
     for _, args in jobs:                       # every map drawn above its own substrate level
-        z = args[0].z
-        assert abs(np.median(z[z < z.mean()])) < 1e-12
+        assert abs(substrate_level(args[0].z)) < 1e-12
     assert len(render_jobs(images, truth, None, run_dir, which="all")) == 2 * len(images) + 1
 
 

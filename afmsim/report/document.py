@@ -52,7 +52,7 @@ DEFINITIONS = (
     "directions): 1 = true scale, 1.26 = every feature drawn 26 % too wide (the stage fell short).",
     "**× ideal** = NSL2 / NSL2 of the ideal controller (the same stage without hysteresis and creep): what "
     "compensation could still gain; 1 is the floor.",
-    "Heights in every image are **above the substrate**: each image's substrate level is the median of its "
+    "Heights in every image are **above the substrate**: each image's substrate level is the commonest level among its "
     "pixels below its mean height (the background NSL2's binarization sees).",
 )
 

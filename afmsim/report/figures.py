@@ -2,9 +2,9 @@
 
 Conventions shared by every 2-D height image of a run (``image_*.png``, ``figure_*.png``):
 
-* heights are drawn **above the substrate**: each image's substrate level is the median of its
-  pixels below the image mean (the background that NSL2's binarization, eq. 8, also sees; for a
-  grating the trench floor), see :func:`substrate_level`;
+* heights are drawn **above the substrate**: each image's substrate level is the commonest level
+  among its pixels below the image mean (the background that NSL2's binarization, eq. 8, also sees;
+  for a grating the trench floor), see :func:`substrate_level`;
 * one colour scale for the whole run: limits are the 0.1st and 99.9th percentiles of all the
   run's referenced trace/retrace heights (:func:`robust_limits`), never a fixed 0; pixels outside
   are drawn in the over/under colours (blue below, cyan above) and the colour bar's pointed ends
@@ -43,11 +43,22 @@ def height_extent_um(hmap: HeightMap) -> list[float]:
 
 
 def substrate_level(z: np.ndarray) -> float:
-    """The substrate height of an image (same unit as ``z``): the median of the pixels below the
-    image mean — the background that the NSL2 binarization (eq. 8, threshold = mean) sees."""
+    """The substrate height of an image (same unit as ``z``): the most common level among the
+    pixels below the image mean — the background that the NSL2 binarization (eq. 8, threshold =
+    mean) sees. The median of the pixels in the fullest histogram bin (Freedman–Diaconis widths, at
+    most 256 bins) is taken, not the median of all pixels below the mean: on a lens array those
+    include the lens flanks and would put the flat substrate tens of nm below zero."""
     z = np.asarray(z, dtype=np.float64)
     below = z[z < z.mean()]
-    return float(np.median(below)) if below.size else float(z.min())
+    if below.size == 0:
+        return float(z.min())
+    edges = np.histogram_bin_edges(below, bins="fd")
+    if edges.size > 257:
+        edges = np.linspace(below.min(), below.max(), 257)
+    counts, edges = np.histogram(below, bins=edges)
+    peak = int(np.argmax(counts))
+    in_peak = below[(below >= edges[peak]) & (below <= edges[peak + 1])]
+    return float(np.median(in_peak))
 
 
 def above_substrate(hmap: HeightMap) -> HeightMap:
