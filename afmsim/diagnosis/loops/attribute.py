@@ -32,6 +32,7 @@ from afmsim.reproducible import single_blas_thread
 
 from ..engine import Front, Rules, attribute, conclude, effect_lines, noise_floor, ratio_text, rms, verdict_text
 from .localise import localise
+from .coupling import coupling_output, coupling_text
 from .minor_loop import minor_loop_law
 from .model import Design, FittedModel, ModelSpec, fit_model
 from .record import LoopRecord, load_record
@@ -122,6 +123,8 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
         "unexplained": outcome["unexplained"],
         "minor_loop_law": minor_loop_law(rec.t, rec.v, rec.x, train, sigma),
     }
+    if rec.y is not None:
+        report["cross_coupling_output"] = coupling_output(rec.t, rec.x, rec.y, train)
     summary = loop_summary(report)
     if figure_path is not None:
         plot_diagnosis(rec, r_base, front.residual(att.final), held, figure_path,
@@ -148,6 +151,8 @@ def loop_summary(rep: dict) -> str:
     lines.append("Where: " + where_text(rep["where"]))
     lines += effect_lines(rep["effects"])
     lines.append(verdict_text(rep, where_text))
+    if "cross_coupling_output" in rep:
+        lines.append("Cross-coupling x → y: " + coupling_text(rep["cross_coupling_output"]))
     if "minor_loop_law" in rep:
         lines.append("Minor-loop law: " + rep["minor_loop_law"]["note"])
     return "\n".join(lines)
