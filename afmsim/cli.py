@@ -264,14 +264,16 @@ def _progress(show: bool):
     def bar():
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+        # no refresh thread: the run forks worker and render processes, and a fork must not copy a
+        # console lock that a refresh thread holds; the bar is redrawn at each update instead
         with Progress(TextColumn("{task.description:>8}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                      transient=True) as prog:
+                      transient=True, auto_refresh=False) as prog:
             tasks = {}
 
             def update(stage, done, total):
                 if stage not in tasks:
                     tasks[stage] = prog.add_task(stage, total=total)
-                prog.update(tasks[stage], completed=done, total=total)
+                prog.update(tasks[stage], completed=done, total=total, refresh=True)
             yield update
     return bar()
 
@@ -475,6 +477,8 @@ def calibrate_command(
                            channel=channel, line_time_s=line_time_s)
     except (ValueError, FileExistsError) as error:
         _fail(str(error))
+    except OSError as error:
+        _fail(f"{error.filename or out}: {error.strerror or error}")
     held = report["held_out"]
     if "rms_error_m" in held:
         typer.echo(f"held-out lines: shift-profile RMS error {held['rms_error_m'] * 1e6:.3f} µm "
@@ -504,6 +508,8 @@ def predict_command(
         result = predict(instrument, measured, out, channel=channel, line_time_s=line_time_s, seed=seed)
     except (ValueError, FileExistsError) as error:
         _fail(str(error))
+    except OSError as error:
+        _fail(f"{error.filename or out}: {error.strerror or error}")
     if "rms_error_m" in result:
         default = result["default_stage"]
         typer.echo(f"shift profile: measured RMS {result['measured_rms_m'] * 1e6:.3f} µm; twin error "

@@ -81,6 +81,28 @@ def test_gwy_channels_and_run_images_npz_load(tmp_path):
         load_images(run / "images.npz", channel="diapi")
 
 
+def test_gwy_with_afmsim_line_rate_metadata_needs_no_scenario(tmp_path):
+    """The ``line rate (Hz)`` that ``afmsim run`` writes into images.gwy is read back."""
+    pair = _pair()
+    maps = {k: HeightMap(pair[k], (10e-6 / 24, 8e-6 / 20), (1e-6, 2e-6)) for k in ("trace", "retrace")}
+    path = write_gwy(tmp_path / "scan.gwy", maps, meta={"line rate (Hz)": repr(2.5)})
+    assert load_images(path).line_rate_hz == pytest.approx(2.5)
+    assert load_images(path, line_rate_hz=3.0).line_rate_hz == 3.0        # --scenario still wins
+
+
+def test_truncated_npz_is_one_line_and_exit_2(tmp_path):
+    good = tmp_path / "good.npz"
+    np.savez(good, **_pair())
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    with pytest.raises(ValueError, match="not a readable .npz"):
+        load_images(cut)
+    out = tmp_path / "diag"
+    outcome = CliRunner().invoke(app, ["diagnose", "--measured", str(cut), "--out", str(out)])
+    assert outcome.exit_code == 2 and "Traceback" not in outcome.output and not out.exists()
+    assert len([line for line in outcome.output.splitlines() if line.strip()]) == 1
+
+
 def test_z_loop_lag_and_parachuting():
     dt, ki, kp, sp = 1e-4, 500.0, 0.1, 20e-9
     loop = ZLoop(ki, kp, sp)

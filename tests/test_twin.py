@@ -141,6 +141,19 @@ def test_cli_bad_input_exit_2_nothing_written(tmp_path):
     assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1 and not out.exists()
 
 
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc (a folder nobody can create in)")
+def test_cli_unwritable_out_is_one_line_not_a_traceback(tmp_path):
+    from afmsim.stage import default_stage, triangle_wave
+
+    t, v = triangle_wave(9.1, 1.0, 500.0, cycles=3)
+    x, _ = default_stage().move(t, v, np.zeros_like(v))
+    record = tmp_path / "loop.csv"
+    np.savetxt(record, np.c_[t, v, x], delimiter=",", header="t_s,v_V,x_m", comments="")
+    result = CliRunner().invoke(app, ["calibrate", "--measured", str(record), "--out", "/proc/afmsim-none/x"])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert result.output.strip().splitlines() == ["error: /proc/afmsim-none: No such file or directory"]
+
+
 def test_scenario_runs_on_the_twin(tmp_path):
     from afmsim.experiment import build_stage
     from afmsim.scenario import ScenarioError, load_scenario

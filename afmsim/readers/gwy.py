@@ -38,7 +38,7 @@ def _line_time(meta) -> float | None:
     if meta is None:
         return None
     entries = {str(k).strip().lower(): str(v) for k, v in meta.items()}
-    for keys, per_direction in ((("time/line", "line time"), True), (("scan rate", "scanrate"), False)):
+    for keys, per_direction in ((("time/line", "line time"), True), (("scan rate", "scanrate", "line rate (hz)"), False)):
         for key in keys:
             match = re.match(r"\s*([-+0-9.eE]+)\s*(\S*)", entries.get(key, ""))
             if match is None:

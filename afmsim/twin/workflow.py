@@ -51,7 +51,7 @@ def _provenance(fitted: list[str], header: list[str]) -> dict:
     out = {key: "fitted" for key in fitted}
     out.update({key: "header" for key in header})
     for block in ("fast_axis", "slow_axis", "z_loop", "scan"):
-        for name in getattr(Instrument(), block).model_fields:
+        for name in type(getattr(Instrument(), block)).model_fields:
             out.setdefault(f"{block}.{name}", "default")
     out.setdefault("cross_coupling", "default")
     return out

@@ -26,6 +26,7 @@ runs of two or more, or a bad first/last pixel, are refused.
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -157,8 +158,8 @@ def _read_npz(path: Path, channel, line_rate_hz) -> dict:
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError) as error:
-        raise ValueError(f"{path.name} is not a readable .npz file ({str(error).splitlines()[0]})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        raise ValueError(f"{path.name} is not a readable .npz file ({(str(error).splitlines() or [''])[0]})") from None
     if "trace" in arrays or "retrace" in arrays:
         missing = [k for k in REQUIRED if k not in arrays and not (k == "line_rate_hz" and line_rate_hz)]
         if missing:
@@ -181,6 +182,18 @@ def _read_npz(path: Path, channel, line_rate_hz) -> dict:
             "scan_offset_m": (origin[0] - pixel[0] / 2, origin[1] - pixel[1] / 2), "_channel": name}
 
 
+def _gwy_line_rate(path: Path) -> float | None:
+    """Line rate (Hz, one line = trace + retrace) from the channels' metadata (:mod:`afmsim.readers.gwy`:
+    an import's ``Time/Line``/``Scan rate``, or the ``line rate (Hz)`` afmsim writes), when all agree."""
+    from afmsim.readers import ReaderError, read_afm_file
+
+    try:
+        times = {c.line_time_s for c in read_afm_file(path).channels if c.line_time_s}
+    except ReaderError:
+        return None
+    return 1.0 / (2.0 * times.pop()) if len(times) == 1 else None
+
+
 def _read_gwy(path: Path, channel, line_rate_hz) -> dict:
     from afmsim.report.gwy import read_gwy
 
@@ -198,7 +211,9 @@ def _read_gwy(path: Path, channel, line_rate_hz) -> dict:
             raise ValueError(f"{path.name}: channel 'retrace {name}' missing")
         t, r = maps[titles[f"trace {name}"]], maps[titles[f"retrace {name}"]]
     if line_rate_hz is None:
-        raise ValueError(f"{path.name}: a .gwy file carries no line rate; give --scenario (scan.line_rate_hz)")
+        line_rate_hz = _gwy_line_rate(path)
+    if line_rate_hz is None:
+        raise ValueError(f"{path.name}: the .gwy file records no line rate; give --scenario (scan.line_rate_hz)")
     dx, dy = t.pixel_size
     return {"trace": t.z, "retrace": r.z, "scan_size_m": t.size, "line_rate_hz": line_rate_hz,
             "scan_offset_m": (t.origin[0] - dx / 2, t.origin[1] - dy / 2), "_channel": name}
