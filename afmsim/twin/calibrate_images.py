@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from afmsim.diagnosis.engine import noise_floor
 from afmsim.metrics import image_shift
 
 from .instrument import Instrument, build_twin_stage, twin_z_feedback
@@ -99,12 +100,6 @@ def twin_profile(instrument: Instrument, trace, scan: RealScan, n_windows: int =
                                        overscan_fraction=habit.overscan_fraction, centre_fraction=habit.centre_fraction,
                                        lag_s=lag_s, samples_per_pixel=habit.samples_per_pixel)
     return shift_profile(sim_trace, sim_retrace, scan.size_m[0] / scan.pixels, n_windows)
-
-
-def height_noise_m(image) -> float:
-    """White height noise σ (m) from the second difference along x: 1.4826·MAD(Δ²z)/√6."""
-    d2 = np.diff(np.asarray(image, dtype=np.float64), n=2, axis=1)
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
 def _gradient_autocorrelation(g: np.ndarray) -> np.ndarray:
@@ -235,7 +230,7 @@ def calibrate_images(trace, retrace, scan: RealScan, *, start: Instrument | None
     scale = np.where((sd_theta > 0) & np.isfinite(sd_theta), sd_theta, 1.0)
     correlation = cov / np.outer(scale, scale)
     instrument = _with(start, values)
-    noise = height_noise_m(trace)
+    noise = noise_floor(trace)   # white height noise σ from second differences along x
     instrument = instrument.model_copy(update={"z_loop": instrument.z_loop.model_copy(
         update={"height_noise_nm": float(min(noise * 1e9, 100.0))})})
     facts = {"height_noise_m": noise, "chi2_per_dof": chi2, "full_scan_minus_fast_model_m": departure,

@@ -22,6 +22,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from afmsim.diagnosis import load_record
+from afmsim.diagnosis.engine import rms
 
 from .instrument import AxisSpec, Instrument, LoopDriveSpec, build_twin_axis
 
@@ -74,9 +75,6 @@ def _fit_linear(spec: AxisSpec, t, u, x, train):
     unit = _unit_response(spec, t, u)
     return _linear([unit, np.ones_like(t)], x, train)
 
-
-def _rms(a) -> float:
-    return float(np.sqrt(np.mean(np.square(a))))
 
 
 def _split(n: int) -> np.ndarray:
@@ -141,9 +139,9 @@ def calibrate_loop(path, max_nfev: int = 80) -> LoopCalibration:
         "train": f"first {TRAIN_FRACTION:.0%} of the samples (t ≤ {t[train][-1]:.4g} s)",
         "parameters": parameters,
         "drive_map": {"v_min_V": v_min, "v_max_V": v_max, "to": "0–10 V twin drive"},
-        "fit": {"train_rms_m": _rms((twin_x - x)[train]), "optimizer": best.message},
-        "held_out": {"twin_rms_m": _rms((twin_x - x)[held]), "default_stage_rms_m": _rms((default_x - x)[held]),
-                     "measured_rms_m": _rms(x[held] - x[held].mean())},
+        "fit": {"train_rms_m": rms((twin_x - x)[train]), "optimizer": best.message},
+        "held_out": {"twin_rms_m": rms((twin_x - x)[held]), "default_stage_rms_m": rms((default_x - x)[held]),
+                     "measured_rms_m": rms(x[held] - x[held].mean())},
         "not_constrained": ["slow_axis (one axis recorded)", "fast_axis.resonance_hz (above the record's band)",
                             "z_loop", "scan"],
     }
@@ -169,11 +167,11 @@ def predict_loop(instrument: Instrument, path) -> tuple[dict, tuple]:
     train = _split(t.size)
     _, _, default_x = _fit_linear(AxisSpec(), t, u, x, train)
     held = ~train
-    twin_rms, default_rms = _rms((twin_x - x)[held]), _rms((default_x - x)[held])
+    twin_rms, default_rms = rms((twin_x - x)[held]), rms((default_x - x)[held])
     prediction = {"measured": str(path), "held_out": f"last {1 - TRAIN_FRACTION:.0%} of the samples",
                   "twin": {"held_out_rms_m": twin_rms},
                   "default_stage": {"held_out_rms_m": default_rms,
                                     "note": "afmsim's default plant shape; travel and offset fitted on the first 60 %"},
                   "twin_over_default_rms": twin_rms / default_rms if default_rms > 0 else None,
-                  "measured_rms_m": _rms(x[held] - x[held].mean())}
+                  "measured_rms_m": rms(x[held] - x[held].mean())}
     return prediction, (t, v, x, {"twin": twin_x, "afmsim default stage": default_x}, int(train.sum()))

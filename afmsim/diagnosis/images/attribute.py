@@ -187,8 +187,7 @@ def line_offsets(record: ImageRecord, lines: np.ndarray) -> dict:
     line-to-line jitter, the robust σ of its second differences over lines / √6 (a slow trend along
     y drops out; topography cancels between the directions) — the datasheet's 0.5–5 nm."""
     off = record.retrace[lines].mean(axis=1) - record.trace[lines].mean(axis=1)
-    d2 = np.diff(off, 2)
-    jitter = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0) if d2.size else float("nan")
+    jitter = noise_floor(off) if off.size > 2 else float("nan")
     return {"retrace_minus_trace_m": float(np.median(off)), "jitter_m": jitter}
 
 

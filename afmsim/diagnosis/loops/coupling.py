@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..engine import rms
 from ..plausible import implausible
 
 __all__ = ["coupling_output", "coupling_text", "DETECTION_SIGMAS", "MIN_SHRINK"]
@@ -28,9 +29,6 @@ __all__ = ["coupling_output", "coupling_text", "DETECTION_SIGMAS", "MIN_SHRINK"]
 DETECTION_SIGMAS = 3.0
 MIN_SHRINK = 0.10
 
-
-def _rms(a) -> float:
-    return float(np.sqrt(np.mean(np.square(a))))
 
 
 def coupling_output(t, x, y, train) -> dict:
@@ -53,8 +51,8 @@ def coupling_output(t, x, y, train) -> dict:
     kappa_se = float(np.sqrt(max(cov[0, 0], 0.0)))
     # held-out: y with only its nuisance terms (refitted on the training part) vs with κ·x too
     nuisance, *_ = np.linalg.lstsq(design[train][:, 1:], y[train], rcond=None)
-    rms_without = _rms(y[held] - design[held][:, 1:] @ nuisance)
-    rms_with = _rms(y[held] - design[held] @ coef)
+    rms_without = rms(y[held] - design[held][:, 1:] @ nuisance)
+    rms_with = rms(y[held] - design[held] @ coef)
     shrink = 1.0 - rms_with / rms_without if rms_without > 0 else 0.0
     detected = abs(kappa) >= DETECTION_SIGMAS * kappa_se and shrink >= MIN_SHRINK
     flags = implausible("cross_coupling", {"coefficient": kappa}) if detected else []

@@ -34,6 +34,7 @@ from scipy.signal import lfilter, lfilter_zi
 
 from afmsim.reproducible import single_blas_thread
 
+from ..engine import rms
 from .model import N_LEVELS, creep_taus, lag_filter, relay_features
 
 __all__ = ["minor_loop_law", "minor_loop_excitation", "interior_reversals", "LAWS", "DECISIVE_RATIO"]
@@ -182,17 +183,14 @@ def _fit_duhem(v, lo, hi, x, train, extra) -> tuple[np.ndarray, float, float]:
         return _solve(np.hstack([duhem_columns(v, lo, hi, rate, inverse), extra]), none, x, train)
 
     def train_error(theta):
-        return _rms((predict(np.exp(theta[0]), abs(theta[1])) - x)[train])
+        return rms((predict(np.exp(theta[0]), abs(theta[1])) - x)[train])
 
     start = min(((np.log(a), p) for a in RATE_GRID for p in INVERSE_GRID), key=train_error)
     theta = minimize(train_error, np.array(start), method="Nelder-Mead",
-                     options={"xatol": 1e-3, "fatol": 1e-4 * _rms(x[train] - x[train].mean()), "maxiter": 200}).x
+                     options={"xatol": 1e-3, "fatol": 1e-4 * rms(x[train] - x[train].mean()), "maxiter": 200}).x
     rate, inverse = float(np.exp(theta[0])), float(abs(theta[1]))
     return predict(rate, inverse), rate, inverse
 
-
-def _rms(a) -> float:
-    return float(np.sqrt(np.mean(np.square(a))))
 
 
 @single_blas_thread
@@ -225,8 +223,8 @@ def minor_loop_law(t, v, x, train, sigma: float) -> dict:
     free = np.column_stack([np.ones_like(v), vn, creep])
     preisach = _solve(free, np.hstack([relay_features(vc, lo, hi), latched_relays(vc, lo, hi)]), x, train)
     duhem, rate, inverse = _fit_duhem(vc, lo, hi, x, train, creep)
-    gaps = {"preisach": _rms((preisach - x)[held]), "duhem": _rms((duhem - x)[held])}
-    train_gaps = {"preisach": _rms((preisach - x)[train]), "duhem": _rms((duhem - x)[train])}
+    gaps = {"preisach": rms((preisach - x)[held]), "duhem": rms((duhem - x)[held])}
+    train_gaps = {"preisach": rms((preisach - x)[train]), "duhem": rms((duhem - x)[train])}
     winner, other = sorted(LAWS, key=gaps.get)
     ratio = gaps[other] / gaps[winner] if gaps[winner] > 0 else float("inf")
     out.update(heldout_rms_gap=gaps, train_rms_gap=train_gaps, ratio=ratio,
