@@ -18,7 +18,7 @@ from scipy.interpolate import interp1d
 from afmsim.samples import HeightMap
 from afmsim.scan import RasterGeometry
 
-__all__ = ["RealScan", "twin_geometry", "image_columns", "sample_from_trace", "mean_branch_positions"]
+__all__ = ["RealScan", "twin_geometry", "image_columns", "sample_from_trace"]
 
 
 @dataclass(frozen=True)
@@ -55,13 +55,6 @@ def image_columns(geometry: RasterGeometry, scan: RealScan) -> slice:
     """The columns of a twin image (overscan included) that make the real image."""
     extra = (geometry.pixels - scan.pixels) // 2
     return slice(extra, extra + scan.pixels)
-
-
-def mean_branch_positions(actual_x: np.ndarray, geometry: RasterGeometry, frame_start: int) -> tuple[np.ndarray, np.ndarray]:
-    """Mean actual x (m) over each pixel of each line, trace and retrace, both (lines, pixels) left → right."""
-    g = geometry
-    frame = actual_x[frame_start:].reshape(g.lines, 2, g.pixels, g.samples_per_pixel).mean(axis=3)
-    return frame[:, 0, :], frame[:, 1, ::-1]
 
 
 def sample_from_trace(trace: np.ndarray, x_trace: np.ndarray, y_lines: np.ndarray, pixel_m: float,

@@ -26,7 +26,7 @@ from afmsim.compensation import NominalLinear
 from afmsim.scan import ZFeedback, ZStage, raster_trajectory, scan_frame
 from afmsim.stage import PiezoAxis, XYStage
 
-from .raster import RealScan, image_columns, mean_branch_positions, sample_from_trace, twin_geometry
+from .raster import RealScan, image_columns, sample_from_trace, twin_geometry
 
 __all__ = ["simulate_scan", "fast_pair", "WARM_LINES"]
 
@@ -48,8 +48,8 @@ def simulate_scan(stage: XYStage, z_feedback: ZFeedback, trace: np.ndarray, scan
     trajectory = raster_trajectory(geometry)
     controllers = [NominalLinear(axis.params.sensitivity_m_per_V) for axis in (stage.x, stage.y)]
     x, y = stage.move(trajectory.t, controllers[0].predict(trajectory.x), controllers[1].predict(trajectory.y))
-    x_trace, _ = mean_branch_positions(x, geometry, trajectory.frame_start)
-    y_trace, _ = mean_branch_positions(y, geometry, trajectory.frame_start)
+    x_trace, _ = trajectory.to_images(x)      # the twin's actual position of each trace pixel
+    y_trace, _ = trajectory.to_images(y)
     columns = image_columns(geometry, scan)
     dx = scan.size_m[0] / scan.pixels
     surface = sample_from_trace(trace, x_trace[:, columns], y_trace[:, columns].mean(axis=1), dx / 2,
