@@ -150,6 +150,26 @@ def write_nsl2_table(metrics: dict, kind: str, folder) -> tuple[dict, list[Path]
 # --------------------------------------------------------------------------- identification
 
 
+def _error_rows(writer, series: list, paper: list) -> list[list[str]]:
+    """Write the per-experiment, mean, σ and paper rows of a Table 2 analogue to the CSV ``writer``
+    (one column per list of per-experiment errors in ``series``; ``paper``: the paper's mean per
+    column or None) and return the same rows for the markdown table."""
+    from afmsim.metrics import summarize
+
+    rows_md = []
+    for k in range(len(series[0])):
+        vals = [values[k] for values in series]
+        writer.writerow([k + 1, *[f"{v:.6g}" for v in vals]])
+        rows_md.append([str(k + 1), *[f"{v:.4f}" for v in vals]])
+    for label, stat in (("mean", "mean"), ("std", "std")):
+        vals = [summarize(values)[stat] for values in series]
+        writer.writerow([label, *[f"{v:.6g}" for v in vals]])
+        rows_md.append([f"**{label}**" if label == "mean" else "σ", *[_fmt(v, ".4f") for v in vals]])
+    writer.writerow(["paper", *["" if v is None else f"{v:.6g}" for v in paper]])
+    rows_md.append(["paper mean", *[_fmt(v, ".3f") for v in paper]])
+    return rows_md
+
+
 def identification_table2(result) -> tuple[str, str]:
     """Table 2 analogue (RMS and max voltage error, V) as ``(markdown, csv)`` with the paper's column."""
     from afmsim.metrics import summarize
@@ -157,22 +177,11 @@ def identification_table2(result) -> tuple[str, str]:
     names = list(result.errors)
     stats = [("rms_V", "RMS"), ("max_V", "max")]
     cols = [(n, s, lab) for s, lab in stats for n in names]
-    n_exp = len(result.errors[names[0]]["rms_V"])
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["experiment", *[f"{s}_{n}" for n, s, _ in cols]])
-    rows_md = []
-    for k in range(n_exp):
-        vals = [result.errors[n][s][k] for n, s, _ in cols]
-        w.writerow([k + 1, *[f"{v:.6g}" for v in vals]])
-        rows_md.append([str(k + 1), *[f"{v:.4f}" for v in vals]])
-    for label, stat in (("mean", "mean"), ("std", "std")):
-        vals = [summarize(result.errors[n][s])[stat] for n, s, _ in cols]
-        w.writerow([label, *[f"{v:.6g}" for v in vals]])
-        rows_md.append([f"**{label}**" if label == "mean" else "σ", *[_fmt(v, ".4f") for v in vals]])
-    paper = [TABLE2_MEANS.get(n, {}).get(s) for n, s, _ in cols]
-    w.writerow(["paper", *["" if v is None else f"{v:.6g}" for v in paper]])
-    rows_md.append(["paper mean", *[_fmt(v, ".3f") for v in paper]])
+    rows_md = _error_rows(w, [result.errors[n][s] for n, s, _ in cols],
+                          [TABLE2_MEANS.get(n, {}).get(s) for n, s, _ in cols])
     md = ["**Table 2 analogue: model voltage errors (V) on fresh experiments**", "",
           markdown_table(["experiment", *[f"{lab} {n.upper()}" for n, _, lab in cols]], rows_md), ""]
     srows = []
@@ -201,18 +210,8 @@ def identification_table2_laws(results: dict) -> tuple[str, str]:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["experiment", *[f"{law}_{s}_{n}" for law, s, n in cols]])
-    rows_md = []
-    for k in range(len(results[laws[0]].errors[names[0]]["rms_V"])):
-        vals = [results[law].errors[n][s][k] for law, s, n in cols]
-        w.writerow([k + 1, *[f"{v:.6g}" for v in vals]])
-        rows_md.append([str(k + 1), *[f"{v:.4f}" for v in vals]])
-    for name, stat in (("mean", "mean"), ("std", "std")):
-        vals = [summarize(results[law].errors[n][s])[stat] for law, s, n in cols]
-        w.writerow([name, *[f"{v:.6g}" for v in vals]])
-        rows_md.append([f"**{name}**" if name == "mean" else "σ", *[_fmt(v, ".4f") for v in vals]])
-    paper = [TABLE2_MEANS.get(n, {}).get(s) for _, s, n in cols]
-    w.writerow(["paper", *["" if v is None else f"{v:.6g}" for v in paper]])
-    rows_md.append(["paper mean", *[_fmt(v, ".3f") for v in paper]])
+    rows_md = _error_rows(w, [results[law].errors[n][s] for law, s, n in cols],
+                          [TABLE2_MEANS.get(n, {}).get(s) for _, s, n in cols])
     md = ["**Table 2 analogue per plant law: model voltage errors (V) on fresh experiments**", "",
           markdown_table(["experiment", *[f"{law}: {label[s]} {n.upper()}" for law, s, n in cols]], rows_md)]
     if "spi" in names and "diapi" in names:
