@@ -317,8 +317,7 @@ def diagnose(
 
     Python: afmsim.diagnosis.diagnose_loops(path, scenario=...) or diagnose_images(path, scenario=...).
     """
-    from afmsim.diagnosis import diagnose_images, diagnose_loops
-    from afmsim.diagnosis.images.record import instrument_pair
+    from afmsim.diagnosis import diagnose_images, diagnose_loops, load_images
     from afmsim.readers import reader_for
     from afmsim.runio import default_run_dir, run_folder, write_json
 
@@ -327,19 +326,21 @@ def diagnose(
     out = out or default_run_dir("diagnose", measured.stem)
     if out.exists():
         _fail(f"output folder {out} already exists: choose another --out or remove it")
-    try:  # an instrument file is read and its height pair picked before anything is written
-        pair = instrument_pair(measured, channel) if images else None
+    try:  # image files are read (once) and checked, an instrument file's height pair picked, before anything is written
+        record = load_images(measured, channel=channel, line_rate_hz=loaded.scan.line_rate_hz if loaded else None) \
+            if images else None
     except ValueError as error:
         _fail(str(error).splitlines()[0])
-    if pair is not None:
-        typer.echo(pair[2])
+    picked = record.picked if record is not None else None
+    if picked is not None:
+        typer.echo(picked)
     config = {"measured": str(measured), "scenario": None if scenario is None else str(scenario), "baseline": baseline,
               "seed": seed, **({"reference": reference, "channel": channel} if images else {}),
-              **({"picked": pair[2]} if pair is not None else {})}
+              **({"picked": picked} if picked is not None else {})}
     try:
         with run_folder(out, config=config, seed=seed, command="diagnose") as folder:
             if images:
-                report, summary = diagnose_images(measured, scenario=loaded, reference=reference, channel=channel,
+                report, summary = diagnose_images(record, scenario=loaded, reference=reference, channel=channel,
                                                   baseline="asymmetric" if baseline == "preisach" else "symmetric",
                                                   figure_path=folder / "diagnosis.png", rng_seed=seed)
             else:

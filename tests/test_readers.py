@@ -16,6 +16,7 @@ from typer.testing import CliRunner
 
 from afmsim.cli import app
 from afmsim.diagnosis import load_images
+import afmsim.readers as readers
 from afmsim.readers import ReaderError, pick_height_pair, read_afm_file
 from afmsim.readers.channels import quantity_of, split_direction, to_si
 
@@ -300,6 +301,32 @@ def test_npz_run_images_and_plain_pair(tmp_path):
     assert pick_height_pair(read_afm_file(run), "diapi")[0].name == "diapi"
 
 
+def test_afmsim_own_images_come_through_the_shared_readers(tmp_path):
+    """A plain trace/retrace .npz and a .gwy titled trace/retrace (what afmsim writes) are one
+    'height' pair with the window's corner as offset, and load_images takes both from there."""
+    from afmsim.report.gwy import write_gwy
+    from afmsim.samples.heightmap import HeightMap
+
+    trace, retrace = _grating()
+    pixel, corner = (1e-7, 1e-7), (2e-6, 3e-6)
+    plain = tmp_path / "pair.npz"
+    np.savez(plain, trace=trace, retrace=retrace, scan_size_m=[3.2e-6, 2.4e-6], scan_offset_m=corner)
+    maps = {k: HeightMap(z, pixel, (corner[0] + pixel[0] / 2, corner[1] + pixel[1] / 2))
+            for k, z in (("trace", trace), ("retrace", retrace))}
+    titled = write_gwy(tmp_path / "pair.gwy", maps, meta={"line rate (Hz)": "2.5"})
+    for path in (plain, titled):
+        t, r, picked = pick_height_pair(read_afm_file(path))
+        assert (t.name, t.direction, r.direction) == ("height", "trace", "retrace") and "'height'" in picked
+        assert t.offset_m == pytest.approx(corner) and t.size_m == pytest.approx((3.2e-6, 2.4e-6))
+        record = load_images(path, line_rate_hz=4.0)
+        np.testing.assert_array_equal(record.retrace, retrace)
+        assert record.scan_offset_m == pytest.approx(corner) and record.picked is None
+    assert load_images(titled).line_rate_hz == pytest.approx(2.5)  # recorded by the run, when no scenario says
+    with pytest.raises(ReaderError, match="scan_offset_m must be 2"):
+        np.savez(plain, trace=trace, retrace=retrace, scan_size_m=[3.2e-6, 2.4e-6], scan_offset_m=[1e-6])
+        read_afm_file(plain)
+
+
 # --- bad input: one line, exit 2, nothing written ----------------------------------------------------
 
 def _bad_files(tmp_path):
@@ -353,14 +380,17 @@ def _made(fmt, path, trace, retrace):
 
 
 @pytest.mark.parametrize("fmt", ["spm", "ibw", "gwy"])
-def test_inspect_and_diagnose_measured_run_on_each_made_format(tmp_path, fmt):
+def test_inspect_and_diagnose_measured_run_on_each_made_format(tmp_path, fmt, monkeypatch):
     trace, retrace = _grating(lines=20, points=32)
     path = _made(fmt, tmp_path / f"grating.{fmt}", trace, retrace)
     listing = json.loads(runner.invoke(app, ["inspect", str(path), "--json"]).output)
     assert [c["line_time_s"] for c in listing["channels"]] == pytest.approx([0.5, 0.5])
+    reads = []
+    monkeypatch.setattr(readers, "read_afm_file", lambda file: reads.append(Path(file).name) or read_afm_file(file))
     out = tmp_path / "diag"
     result = runner.invoke(app, ["diagnose", "--measured", str(path), "--out", str(out)])
     assert result.exit_code == 0, result.output
+    assert reads == [path.name]  # read once: the pair is picked and the diagnosis run from the same read
     assert result.output.splitlines()[0].startswith(f"grating.{fmt}: picked ")
     report = json.loads((out / "diagnosis.json").read_text())
     assert "verdict" in report and (out / "summary.txt").exists()

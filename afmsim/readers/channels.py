@@ -48,6 +48,10 @@ class Channel:
         Scan window width (x, fast axis) and height (y, slow axis), m.
     line_time_s : float or None
         Duration of one scan direction, s, where the file gives it.
+    offset_m : (float, float) or None
+        Position of the window's lower-left corner (outer corner of pixel [0, 0]), m, where the
+        file gives one (``.gwy`` ``xoff``/``yoff``, afmsim's ``.npz``); stage coordinates only in
+        afmsim's own files.
     """
 
     name: str
@@ -57,6 +61,7 @@ class Channel:
     data: np.ndarray = field(repr=False)
     size_m: tuple[float, float]
     line_time_s: float | None
+    offset_m: tuple[float, float] | None = None
 
     @property
     def shape(self) -> tuple[int, int]:

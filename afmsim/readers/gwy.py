@@ -2,7 +2,9 @@
 
 Every ``/N/data`` data field becomes a channel; its title carries name and direction
 (``"Z-Axis forward"`` as Gwyddion titles a Nanosurf import, ``"HeightRetrace"``, ``"Topography [Bwd]"``,
-``"trace none"`` as ``afmsim run`` writes). Units from the fields' ``si_unit_z``/``si_unit_xy``.
+``"trace none"`` as ``afmsim run`` writes); a title that is only the direction word (``"trace"``,
+``"retrace"``) on a length channel names a channel ``height``, as the ``.npz`` reader names a plain
+pair. Units from the fields' ``si_unit_z``/``si_unit_xy``; ``xoff``/``yoff`` give ``Channel.offset_m``.
 Rows as stored: a ``.gwy`` keeps no slow-scan direction, so row 0 is taken as the first line
 scanned (true for files ``afmsim`` writes; a file converted by Gwyddion from another format may
 have been flipped by the import). Line time from the channel's metadata (``/N/meta``) where an
@@ -73,13 +75,17 @@ def read_gwy_file(path: Path) -> AfmFile:
     channels = []
     for i in ids:
         field = container[f"/{i}/data"]
-        name, direction = split_direction(str(container.get(f"/{i}/data/title", f"channel {i}")))
+        title = str(container.get(f"/{i}/data/title", f"channel {i}"))
+        name, direction = split_direction(title)
         unit, factor = _unit(field, "si_unit_z")
+        if direction and name == title.strip() and unit == "m":  # the title is the direction word alone
+            name = "height"
         _, lateral = _unit(field, "si_unit_xy")
         data = np.array(field.data, dtype=np.float64) * factor
         size = (float(field.get("xreal", 1.0)) * lateral, float(field.get("yreal", 1.0)) * lateral)
+        offset = (float(field.get("xoff", 0.0)) * lateral, float(field.get("yoff", 0.0)) * lateral)
         line_time = _line_time(container.get(f"/{i}/meta"))
-        channels.append(Channel(name, direction, quantity_of(name, unit), unit, data, size, line_time))
+        channels.append(Channel(name, direction, quantity_of(name, unit), unit, data, size, line_time, offset))
     if not channels:
         raise ReaderError(f"{path.name}: the .gwy file holds no data fields")
     return AfmFile(path, "gwy", tuple(channels), {"channels_in_file": len(channels)})

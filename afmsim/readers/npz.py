@@ -5,9 +5,12 @@
   and the surface the tip sees (no direction); sizes from ``image_pixel_size_m`` /
   ``sample_pixel_size_m``; the line time from ``scenario.yaml`` beside the file
   (``1 / (2 · scan.line_rate_hz)``), else none.
-* a plain ``.npz`` with ``trace``, ``retrace``, ``scan_size_m`` and optionally ``line_rate_hz``.
+* a plain ``.npz`` with ``trace``, ``retrace``, ``scan_size_m`` and optionally ``line_rate_hz``
+  (Hz, one line = trace + retrace) and ``scan_offset_m``; the pair becomes a channel ``height``.
 
 Rows are lines in scan order (+y), columns left → right in both directions, heights in metres.
+``Channel.offset_m`` is the window's lower-left corner in stage coordinates: ``scan_offset_m``, or
+``image_origin_m`` (the centre of pixel [0, 0]) less half a pixel.
 """
 
 from __future__ import annotations
@@ -34,41 +37,77 @@ def _scenario_line_time(path: Path) -> float | None:
         return None
 
 
-def _size(arrays: dict, key: str, shape) -> tuple[float, float]:
-    pixel = np.asarray(arrays[key], dtype=np.float64).ravel()
-    return float(pixel[0] * shape[1]), float(pixel[1] * shape[0])
+def _numbers(path: Path, arrays: dict, key: str, count: int, unit: str) -> tuple[float, ...]:
+    """``arrays[key]`` as ``count`` finite numbers, else one line naming the key."""
+    values = np.asarray(arrays[key]).ravel()
+    if values.size != count or not np.issubdtype(values.dtype, np.number) or not np.all(np.isfinite(values)):
+        raise ReaderError(f"{path.name}: {key} must be {count} finite number(s) ({unit}), got {values.tolist()}")
+    return tuple(float(v) for v in values)
+
+
+def _images(path: Path, arrays: dict, keys) -> dict[str, np.ndarray]:
+    """The 2-D numeric arrays under ``keys`` as float64, else one line naming the first bad key."""
+    out = {}
+    for key in keys:
+        value = np.asarray(arrays[key])
+        if value.ndim != 2 or not np.issubdtype(value.dtype, np.number):
+            raise ReaderError(f"{path.name}: {key} must be a 2-D numeric array (lines × pixels), got shape "
+                              f"{value.shape} of {value.dtype}")
+        out[key] = value.astype(np.float64)
+    return out
+
+
+def _plain_pair(path: Path, arrays: dict) -> list[Channel]:
+    missing = [k for k in ("trace", "retrace", "scan_size_m") if k not in arrays]
+    if missing:
+        raise ReaderError(f"{path.name} lacks key(s) {missing}; need trace, retrace, scan_size_m "
+                          "(line_rate_hz, scan_offset_m optional)")
+    images = _images(path, arrays, ("trace", "retrace"))
+    size = _numbers(path, arrays, "scan_size_m", 2, "m")
+    line_time = None
+    if "line_rate_hz" in arrays:
+        rate = _numbers(path, arrays, "line_rate_hz", 1, "Hz")[0]
+        if not rate > 0:
+            raise ReaderError(f"{path.name}: line_rate_hz must be positive (Hz), got {rate}")
+        line_time = 1.0 / (2.0 * rate)
+    offset = _numbers(path, arrays, "scan_offset_m", 2, "m") if "scan_offset_m" in arrays else None
+    return [Channel("height", direction, "height", "m", images[direction], size, line_time, offset)
+            for direction in ("trace", "retrace")]
+
+
+def _run_images(path: Path, arrays: dict) -> list[Channel]:
+    pixel = _numbers(path, arrays, "image_pixel_size_m", 2, "m")
+    origin = _numbers(path, arrays, "image_origin_m", 2, "m") if "image_origin_m" in arrays else None
+    offset = None if origin is None else (origin[0] - pixel[0] / 2, origin[1] - pixel[1] / 2)
+    line_time = _scenario_line_time(path)
+    keys = [k for k in arrays if k.partition("_")[0] in ("trace", "retrace") and k.partition("_")[2]]
+    channels = []
+    for key, image in _images(path, arrays, keys).items():
+        direction, _, name = key.partition("_")
+        size = (pixel[0] * image.shape[1], pixel[1] * image.shape[0])
+        channels.append(Channel(name, direction, "height", "m", image, size, line_time, offset))
+    samples = [k for k in ("truth", "dilated") if k in arrays and "sample_pixel_size_m" in arrays]
+    if samples:
+        sample_pixel = _numbers(path, arrays, "sample_pixel_size_m", 2, "m")
+        for key, image in _images(path, arrays, samples).items():
+            size = (sample_pixel[0] * image.shape[1], sample_pixel[1] * image.shape[0])
+            channels.append(Channel(key, "", "height", "m", image, size, None))
+    return channels
 
 
 def read_npz(path: Path) -> AfmFile:
-    """The height images of an afmsim ``.npz`` as channels."""
+    """The height images of an afmsim ``.npz`` as channels; a bad key is one line naming it."""
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
         raise ReaderError(f"{path.name}: not a readable .npz file ({type(error).__name__})") from None
-    images = {k: v for k, v in arrays.items() if np.ndim(v) == 2 and np.issubdtype(np.asarray(v).dtype, np.number)}
-    channels = []
-    if "trace" in images and "retrace" in images:
-        if "scan_size_m" not in arrays:
-            raise ReaderError(f"{path.name}: lacks scan_size_m (x, y in m) beside trace/retrace")
-        size = tuple(float(v) for v in np.asarray(arrays["scan_size_m"], dtype=np.float64).ravel()[:2])
-        rate = float(np.ravel(arrays["line_rate_hz"])[0]) if "line_rate_hz" in arrays else None
-        line_time = 1.0 / (2.0 * rate) if rate and rate > 0 else None
-        for direction in ("trace", "retrace"):
-            channels.append(Channel("height", direction, "height", "m", images[direction].astype(np.float64),
-                                    size, line_time))
+    if "trace" in arrays or "retrace" in arrays:
+        channels = _plain_pair(path, arrays)
     elif "image_pixel_size_m" in arrays:
-        line_time = _scenario_line_time(path)
-        for key in images:
-            direction, _, name = key.partition("_")
-            if direction in ("trace", "retrace") and name:
-                size = _size(arrays, "image_pixel_size_m", images[key].shape)
-                channels.append(Channel(name, direction, "height", "m", images[key].astype(np.float64), size,
-                                        line_time))
-        for key in ("truth", "dilated"):
-            if key in images and "sample_pixel_size_m" in arrays:
-                size = _size(arrays, "sample_pixel_size_m", images[key].shape)
-                channels.append(Channel(key, "", "height", "m", images[key].astype(np.float64), size, None))
+        channels = _run_images(path, arrays)
+    else:
+        channels = []
     if not channels:
         raise ReaderError(f"{path.name}: no afmsim images (trace/retrace, or trace_<c>/retrace_<c> with "
                           "image_pixel_size_m)")

@@ -1,7 +1,8 @@
 """Reading and validating measured trace/retrace images (``.npz``, ``.gwy``, vendor files, or arrays).
 
 Accepted inputs (heights in metres, rows = scan lines along +y, columns = pixels left → right in
-*both* images, i.e. the retrace already re-ordered to intended x):
+*both* images, i.e. the retrace already re-ordered to intended x); a file is read once, by
+:func:`afmsim.readers.read_afm_file` (one reader per format):
 
 * ``.npz`` with ``trace``, ``retrace`` (2-D), ``scan_size_m`` (x, y) and ``line_rate_hz``;
   optional ``scan_offset_m`` (stage position of the scan window's lower-left corner);
@@ -10,7 +11,7 @@ Accepted inputs (heights in metres, rows = scan lines along +y, columns = pixels
   the ``scenario.yaml`` beside it, or from the ``line_rate_hz`` argument (``--scenario``);
 * Gwyddion ``.gwy`` with channels titled ``trace``/``retrace`` (or ``trace <c>``/``retrace <c>``, as
   ``afmsim run`` writes them); scan size and offset from the channel geometry, the line rate from
-  the ``line_rate_hz`` argument;
+  the ``line_rate_hz`` argument, else from the channels' metadata (the ``line rate (Hz)`` a run writes);
 * an instrument file that :mod:`afmsim.readers` reads (Nanosurf ``.nid``, Asylum ``.ibw``, Bruker
   ``.spm``/``.000``–``.999``, or a ``.gwy`` without trace/retrace titles): the height channel's
   forward/backward scans as :func:`afmsim.readers.pick_height_pair` picks them (``channel``
@@ -26,13 +27,12 @@ runs of two or more, or a bad first/last pixel, are refused.
 
 from __future__ import annotations
 
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ImageRecord", "load_images", "instrument_pair", "MIN_LINES", "MIN_PIXELS"]
+__all__ = ["ImageRecord", "load_images", "MIN_LINES", "MIN_PIXELS"]
 
 MIN_LINES = 16
 MIN_PIXELS = 16
@@ -57,6 +57,9 @@ class ImageRecord:
         Where the images came from (path and channel).
     filled_pixels : int
         Isolated non-finite pixels filled by interpolation.
+    picked : str or None
+        For an instrument file, the one line saying which channel pair was picked and why
+        (:func:`afmsim.readers.pick_height_pair`); None otherwise.
     """
 
     trace: np.ndarray
@@ -66,6 +69,7 @@ class ImageRecord:
     scan_offset_m: tuple[float, float] | None = None
     source: str = "arrays"
     filled_pixels: int = 0
+    picked: str | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -106,7 +110,7 @@ def _pair(name: str, value, length: int = 2) -> tuple[float, ...]:
     return tuple(float(v) for v in a)
 
 
-def _validate(cols: dict, source: str) -> ImageRecord:
+def _validate(cols: dict, source: str, picked: str | None = None) -> ImageRecord:
     trace = np.asarray(cols["trace"], dtype=np.float64)
     retrace = np.asarray(cols["retrace"], dtype=np.float64)
     if trace.ndim != 2 or retrace.ndim != 2:
@@ -122,163 +126,99 @@ def _validate(cols: dict, source: str) -> ImageRecord:
         raise ValueError(f"scan_size_m must be in (0, 1e-3] m on both axes, got {list(size)}")
     rate = np.asarray(cols["line_rate_hz"], dtype=np.float64).ravel()
     if rate.size != 1 or not np.isfinite(rate[0]) or not 0 < rate[0] <= 1e4:
-        raise ValueError(f"line_rate_hz must be one number in (0, 10000] Hz, got {rate.tolist()}")
+        shown = [float(f"{v:.12g}") for v in rate.tolist()]  # a rate read back from a line time, unrounded
+        raise ValueError(f"line_rate_hz must be one number in (0, 10000] Hz, got {shown}")
     offset = _pair("scan_offset_m", cols["scan_offset_m"]) if cols.get("scan_offset_m") is not None else None
     trace, n_t = _fill_isolated("trace", trace)
     retrace, n_r = _fill_isolated("retrace", retrace)
     if np.ptp(trace) == 0 or np.ptp(retrace) == 0:
         raise ValueError("trace or retrace is flat: there is no topography to diagnose")
-    return ImageRecord(trace, retrace, size, float(rate[0]), offset, source, n_t + n_r)
+    return ImageRecord(trace, retrace, size, float(rate[0]), offset, source, n_t + n_r, picked)
 
 
-def _pick(names, prefix: str, channel: str | None, source: str) -> str:
-    found = sorted(n[len(prefix):] for n in names if n.startswith(prefix))
-    if channel is not None:
-        if channel not in found:
-            raise ValueError(f"{source}: no channel '{prefix}{channel}'; available controllers: {found}")
-        return channel
-    if not found:
-        raise ValueError(f"{source}: lacks key(s) ['trace', 'retrace'] (or trace_<controller>/retrace_<controller>)")
-    return "none" if "none" in found else found[0]
-
-
-def _scenario_line_rate(path: Path) -> float | None:
-    beside = path.parent / "scenario.yaml"
-    if not beside.is_file():
-        return None
-    from afmsim.scenario import ScenarioError, load_scenario
-
-    try:
-        return float(load_scenario(beside).scan.line_rate_hz)
-    except ScenarioError as error:
-        raise ValueError(f"{beside}: {error}") from None
-
-
-def _read_npz(path: Path, channel, line_rate_hz) -> dict:
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
-        raise ValueError(f"{path.name} is not a readable .npz file ({(str(error).splitlines() or [''])[0]})") from None
-    if "trace" in arrays or "retrace" in arrays:
-        missing = [k for k in REQUIRED if k not in arrays and not (k == "line_rate_hz" and line_rate_hz)]
-        if missing:
-            raise ValueError(f"{path.name} lacks key(s) {missing}; need trace, retrace, scan_size_m, line_rate_hz")
-        cols = {k: arrays[k] for k in (*REQUIRED, "scan_offset_m") if k in arrays}
-        cols.setdefault("line_rate_hz", line_rate_hz)
-        return cols
-    name = _pick(arrays, "trace_", channel, path.name)
-    if f"retrace_{name}" not in arrays or "image_pixel_size_m" not in arrays or "image_origin_m" not in arrays:
-        raise ValueError(f"{path.name} lacks key(s) retrace_{name}, image_pixel_size_m or image_origin_m")
-    trace = arrays[f"trace_{name}"]
-    pixel = _pair("image_pixel_size_m", arrays["image_pixel_size_m"])
-    origin = _pair("image_origin_m", arrays["image_origin_m"])
-    rate = line_rate_hz if line_rate_hz is not None else _scenario_line_rate(path)
-    if rate is None:
-        raise ValueError(f"{path.name}: line rate unknown (no scenario.yaml beside it); give --scenario")
-    ny, nx = np.shape(trace) if np.ndim(trace) == 2 else (1, 1)
-    return {"trace": trace, "retrace": arrays[f"retrace_{name}"], "line_rate_hz": rate,
-            "scan_size_m": (pixel[0] * nx, pixel[1] * ny),
-            "scan_offset_m": (origin[0] - pixel[0] / 2, origin[1] - pixel[1] / 2), "_channel": name}
-
-
-def _gwy_line_rate(path: Path) -> float | None:
-    """Line rate (Hz, one line = trace + retrace) from the channels' metadata (:mod:`afmsim.readers.gwy`:
-    an import's ``Time/Line``/``Scan rate``, or the ``line rate (Hz)`` afmsim writes), when all agree."""
-    from afmsim.readers import ReaderError, read_afm_file
-
-    try:
-        times = {c.line_time_s for c in read_afm_file(path).channels if c.line_time_s}
-    except ReaderError:
-        return None
-    return 1.0 / (2.0 * times.pop()) if len(times) == 1 else None
-
-
-def _read_gwy(path: Path, channel, line_rate_hz) -> dict:
-    from afmsim.report.gwy import read_gwy
-
-    try:
-        maps = read_gwy(path)
-    except Exception as error:  # gwyfile raises several exception types on a corrupt file
-        raise ValueError(f"{path.name} is not a readable .gwy file ({str(error).splitlines()[0]})") from None
-    titles = {t.strip().lower(): t for t in maps}
-    if "trace" in titles and "retrace" in titles:
-        t, r = maps[titles["trace"]], maps[titles["retrace"]]
-        name = None
+def _own_pair(afm, channel: str | None) -> tuple:
+    """``(trace, retrace, controller)`` of afmsim's own images: the plain pair (channel ``height``;
+    controller None, ``channel`` ignored), else the controller ``channel`` (default ``none``, else
+    the first by name)."""
+    pairs: dict[str, dict] = {}
+    for c in afm.channels:
+        if c.direction in ("trace", "retrace") and c.quantity == "height":
+            pairs.setdefault(c.name, {})[c.direction] = c
+    label = afm.path.name
+    if "height" in pairs:
+        name, pair = None, pairs["height"]
     else:
-        name = _pick([k.replace(" ", "_", 1) for k in titles], "trace_", channel, path.name)
-        if f"retrace {name}" not in titles:
-            raise ValueError(f"{path.name}: channel 'retrace {name}' missing")
-        t, r = maps[titles[f"trace {name}"]], maps[titles[f"retrace {name}"]]
-    if line_rate_hz is None:
-        line_rate_hz = _gwy_line_rate(path)
-    if line_rate_hz is None:
-        raise ValueError(f"{path.name}: the .gwy file records no line rate; give --scenario (scan.line_rate_hz)")
-    dx, dy = t.pixel_size
-    return {"trace": t.z, "retrace": r.z, "scan_size_m": t.size, "line_rate_hz": line_rate_hz,
-            "scan_offset_m": (t.origin[0] - dx / 2, t.origin[1] - dy / 2), "_channel": name}
+        found = sorted(pairs)
+        if channel is not None and channel not in found:
+            raise ValueError(f"{label}: no channel 'trace_{channel}'; available controllers: {found}")
+        if not found:
+            raise ValueError(f"{label}: lacks key(s) ['trace', 'retrace'] (or trace_<controller>/retrace_<controller>)")
+        name = channel if channel is not None else "none" if "none" in found else found[0]
+        pair = pairs[name]
+    for direction in ("trace", "retrace"):
+        if direction not in pair:
+            raise ValueError(f"{label}: channel '{direction}{'' if name is None else ' ' + name}' missing")
+    return pair["trace"], pair["retrace"], name
 
 
-def instrument_pair(path, channel: str | None = None):
-    """``(trace, retrace, picked)`` channels of an instrument file, or None for afmsim's own images.
+def _columns(afm, channel: str | None, line_rate_hz: float | None) -> tuple[dict, str | None, str | None]:
+    """``(columns, picked, label)``: the :func:`_validate` columns of a file read by
+    :mod:`afmsim.readers`, the one-line description of the vendor channel picked (None for
+    afmsim's own images) and the channel named in the record's source (None for a plain pair).
 
-    None for a ``.npz`` and for a ``.gwy`` titled ``trace``/``retrace`` (as ``afmsim run`` writes);
-    otherwise the pair :func:`afmsim.readers.pick_height_pair` picks, with its one-line description.
-    Raises :class:`afmsim.readers.ReaderError` (a ``ValueError``) for an unreadable file.
+    Line rate: an instrument file's or a plain ``.npz``'s own first, then ``line_rate_hz``; for a
+    run's ``images.npz``/``images.gwy`` ``line_rate_hz`` first, then what the run recorded.
     """
-    from afmsim.readers import pick_height_pair, read_afm_file
+    from afmsim.readers import pick_height_pair
 
-    path = Path(path)
-    if path.suffix.lower() == ".npz":
-        return None
-    afm = read_afm_file(path)
-    if afm.format == "gwy" and any(c.direction in ("trace", "retrace") for c in afm.channels):
-        return None
-    return pick_height_pair(afm, channel)
-
-
-def _read_instrument(path: Path, pair, line_rate_hz) -> dict:
-    trace, retrace, _ = pair
-    rate = 1.0 / (2.0 * trace.line_time_s) if trace.line_time_s else line_rate_hz
+    own = afm.format == "npz" or (afm.format == "gwy" and any(c.direction in ("trace", "retrace")
+                                                              for c in afm.channels))
+    if own:
+        trace, retrace, label = _own_pair(afm, channel)
+        picked, file_first, offset = None, afm.format == "npz" and label is None, trace.offset_m
+    else:  # a vendor's offsets are not stage coordinates
+        trace, retrace, picked = pick_height_pair(afm, channel)
+        label, file_first, offset = f"{trace.name} {trace.direction}/{retrace.direction}", True, None
+    recorded = 1.0 / (2.0 * trace.line_time_s) if trace.line_time_s else None
+    rate = (recorded or line_rate_hz) if file_first else (line_rate_hz or recorded)
     if rate is None:
-        raise ValueError(f"{path.name}: the file gives no line time; give --scenario (scan.line_rate_hz)")
-    return {"trace": trace.data, "retrace": retrace.data, "scan_size_m": trace.size_m, "line_rate_hz": rate,
-            "_channel": f"{trace.name} {trace.direction}/{retrace.direction}"}
+        beside = " and no readable scenario.yaml beside it" if afm.format == "npz" and label is not None else ""
+        raise ValueError(f"{afm.path.name}: line rate unknown (the file records no line time{beside}); "
+                         "give --scenario (scan.line_rate_hz)")
+    cols = {"trace": trace.data, "retrace": retrace.data, "scan_size_m": trace.size_m, "line_rate_hz": rate,
+            "scan_offset_m": offset}
+    return cols, picked, label
 
 
 def load_images(source, *, channel: str | None = None, line_rate_hz: float | None = None) -> ImageRecord:
-    """Validated :class:`ImageRecord` from a ``.npz``/``.gwy``/instrument-file path or a mapping with
-    the ``.npz`` keys.
+    """Validated :class:`ImageRecord` from a ``.npz``/``.gwy``/instrument-file path (read once, by
+    :func:`afmsim.readers.read_afm_file`) or a mapping with the ``.npz`` keys; an
+    :class:`ImageRecord` comes back as it is (already read and validated).
 
     ``channel`` picks the controller of a run's ``images.npz``/``images.gwy`` (default ``none``), or
     the vendor channel of an instrument file (default: the topography, see
-    :func:`afmsim.readers.pick_height_pair`); ``line_rate_hz`` (Hz) is used where the file has none.
+    :func:`afmsim.readers.pick_height_pair`). ``line_rate_hz`` (Hz, the scenario's) is used where an
+    instrument file or a plain ``.npz`` records none, and before what a run's ``images.npz``/
+    ``images.gwy`` recorded.
     """
+    if isinstance(source, ImageRecord):
+        return source
     if isinstance(source, (str, Path)):
+        from afmsim.readers import FORMATS, read_afm_file, reader_for
+
         path = Path(source)
         if not path.is_file():
             raise ValueError(f"image file not found: {path}")
-        from afmsim.readers import FORMATS, reader_for
-
-        suffix = path.suffix.lower()
-        pair = instrument_pair(path, channel) if reader_for(path) is not None else None
-        if pair is not None:
-            cols = _read_instrument(path, pair, line_rate_hz)
-        elif suffix == ".npz":
-            cols = _read_npz(path, channel, line_rate_hz)
-        elif suffix == ".gwy":
-            cols = _read_gwy(path, channel, line_rate_hz)
-        else:
+        if reader_for(path) is None:
             raise ValueError(f"image file must be .npz or .gwy (images) or an instrument file ({FORMATS}), "
                              f"got {path.name}")
-        label = str(path) + (f" [{cols['_channel']}]" if cols.get("_channel") else "")
-    elif isinstance(source, dict):
+        cols, picked, channel_label = _columns(read_afm_file(path), channel, line_rate_hz)
+        return _validate(cols, str(path) + (f" [{channel_label}]" if channel_label else ""), picked)
+    if isinstance(source, dict):
         missing = [k for k in REQUIRED if k not in source and not (k == "line_rate_hz" and line_rate_hz)]
         if missing:
             raise ValueError(f"images lack key(s) {missing}; need trace, retrace, scan_size_m, line_rate_hz")
         cols = dict(source)
         cols.setdefault("line_rate_hz", line_rate_hz)
-        label = "arrays"
-    else:
-        raise ValueError("images must be a .npz/.gwy path or a dict with trace, retrace, scan_size_m, line_rate_hz")
-    return _validate(cols, label)
+        return _validate(cols, "arrays")
+    raise ValueError("images must be a .npz/.gwy path or a dict with trace, retrace, scan_size_m, line_rate_hz")
