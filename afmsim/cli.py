@@ -174,7 +174,7 @@ def run(
     """Run a scenario: scans per controller, images, metrics (paper Tables 3–4).
 
     Python: afmsim.resources.preflight(scenario), afmsim.experiment.run_scenario(scenario, workers=N) and
-    afmsim.report.write_run(result, folder, renders="key").
+    afmsim.report.run_output.write_run(result, folder, renders="key").
     """
     import sys
     import time
@@ -187,7 +187,7 @@ def run(
 
     started = time.perf_counter()
     from afmsim.report.run_output import RENDER_CHOICES
-    from afmsim.workers import available_cores
+    from afmsim.workers import WorkerDied, available_cores
 
     if renders not in RENDER_CHOICES:
         _fail(f"--renders must be one of {', '.join(RENDER_CHOICES)}, got {renders!r}")
@@ -220,6 +220,8 @@ def run(
         except MemoryError:
             _fail(f"out of memory (estimated ≈ {format_bytes(needed)}): reduce scan.pixels/lines or "
                   f"numerics.samples_per_pixel")
+        except WorkerDied as error:
+            _fail(str(error))
     _print_summary(result.metrics())
     typer.echo(f"wrote {out}")
 

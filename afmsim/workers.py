@@ -9,21 +9,44 @@ what a serial one does. Every piece draws only from its own seeded generator and
 BLAS thread (:mod:`afmsim.reproducible`), hence parallel results equal serial ones bit for bit
 (``tests/test_parallel.py``).
 
-With one worker (or where ``fork`` is missing) everything runs in the calling process.
+With one worker (or where ``fork`` is missing) everything runs in the calling process. A worker
+that dies (the kernel's out-of-memory killer, a signal, ``os._exit``) raises :class:`WorkerDied`
+with one line saying how it died, instead of the pool's ``BrokenProcessPool``.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 
 from threadpoolctl import threadpool_limits
 
-__all__ = ["available_cores", "worker_pool", "ordered_map", "shared"]
+__all__ = ["available_cores", "worker_pool", "ordered_map", "shared", "WorkerDied"]
 
 _SHARED: dict = {}
+
+
+class WorkerDied(RuntimeError):
+    """A worker process of :func:`worker_pool` ended abruptly; the message is one line saying how
+    (signal or exit status) and what to do."""
+
+
+def _how_it_died(exit_codes) -> str:
+    """``killed by signal 9 (SIGKILL) — out of memory?`` or ``exited with status 3``, from the
+    workers' exit codes (the pool sends SIGTERM to the survivors, so the others name the culprit)."""
+    ended = [code for code in exit_codes if code]
+    culprits = [code for code in ended if code != -signal.SIGTERM] or ended
+    if not culprits:
+        return "cause unknown"
+    code = culprits[0]
+    if code > 0:
+        return f"exited with status {code}"
+    name = signal.Signals(-code).name if -code in signal.valid_signals() else "unknown"
+    return f"killed by signal {-code} ({name})" + (" — out of memory?" if -code == signal.SIGKILL else "")
 
 
 def available_cores() -> int:
@@ -50,9 +73,19 @@ def worker_pool(workers: int, **values):
         if workers <= 1 or "fork" not in multiprocessing.get_all_start_methods():
             yield None
             return
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
-                                 initializer=_start_worker) as executor:
-            yield executor
+        processes = {}
+        try:
+            with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
+                                     initializer=_start_worker) as executor:
+                try:
+                    yield executor
+                except BrokenProcessPool:
+                    # the pool forgets its processes on shut-down; their exit codes are read once it has joined them
+                    processes = dict(getattr(executor, "_processes", None) or {})
+                    raise
+        except BrokenProcessPool:
+            how = _how_it_died(p.exitcode for p in processes.values())
+            raise WorkerDied(f"a worker process died ({how}); run again with fewer workers (--workers 1)") from None
     finally:
         _SHARED.clear()
         _SHARED.update(previous)
