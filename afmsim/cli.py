@@ -180,6 +180,7 @@ def run(
     import time
 
     from afmsim.experiment import run_scenario
+    from afmsim.report.render_process import RenderProcess
     from afmsim.report.run_output import write_run
     from afmsim.resources import format_bytes
     from afmsim.runio import default_run_dir, run_folder
@@ -203,6 +204,8 @@ def run(
     if out.exists():
         _fail(f"output folder {out} already exists: choose another --out or remove it")
     show = not quiet and sys.stderr.isatty()
+    # the 3D renders' start-up (VTK, GL context, shaders) is paid while the run simulates
+    render_process = RenderProcess() if renders != "none" else None
     with _progress(show) as progress:
         try:
             extra = {}
@@ -210,7 +213,8 @@ def run(
                             extra=extra) as folder:
                 result = run_scenario(loaded, progress=progress, workers=workers)
                 simulated = time.perf_counter()
-                write_run(result, folder, renders=renders, progress=progress, workers=workers)
+                write_run(result, folder, renders=renders, progress=progress, workers=workers,
+                          render_process=render_process)
                 extra["timings"] = {**result.timings, "report_s": time.perf_counter() - simulated,
                                     "total_s": time.perf_counter() - started}
         except ValueError as error:
@@ -222,6 +226,9 @@ def run(
                   f"numerics.samples_per_pixel")
         except WorkerDied as error:
             _fail(str(error))
+        finally:
+            if render_process is not None:
+                render_process.close()  # a no-op once it has drawn
     _print_summary(result.metrics())
     typer.echo(f"wrote {out}")
 

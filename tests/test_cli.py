@@ -129,7 +129,7 @@ def test_run_writes_images_metrics_and_manifest(quick_run):
         scores = metrics["controllers"][name]
         assert {"mean", "std", "per_experiment"} <= set(scores["nsl2"])
         assert np.isfinite(scores["shift_x_m"]["mean"])
-        assert (out / f"image_{name}.png").stat().st_size > 10_000
+        assert (out / f"figure_{name}.png").stat().st_size > 10_000
     assert "e_D" in metrics
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["seed"] == 7 and manifest["config"]["name"] == "quick"

@@ -35,10 +35,10 @@ def run_dir(tmp_path_factory):
 def test_report_html_embeds_images(run_dir):
     page = (run_dir / "report.html").read_text(encoding="utf-8")
     uris = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page)
-    # 4 height/difference images + 4 paper figures + binarized (+ 9 renders where rendering works)
-    assert len(uris) >= 9
+    # 4 controller figures + binarized (+ 9 renders where rendering works)
+    assert len(uris) >= 5
     assert all(u.startswith("iVBORw0KGgo") for u in uris)  # base64 of the PNG signature
-    assert 'src="render_' not in page and 'src="image_' not in page  # nothing linked from outside
+    assert 'src="render_' not in page and 'src="figure_' not in page  # nothing linked from outside
     assert "kind: microlens" in page and "Table 3 (micro-lens)" in page
 
 
@@ -47,7 +47,7 @@ def test_report_md_has_table_with_paper_values(run_dir):
     for paper_value in ("45,814", "2,322", "1,293", "44.3 %"):
         assert paper_value in md
     assert "| experiment | none (D_N) | spi (D_S) | diapi (D_A) | ideal | e_D |" in md
-    assert "](image_diapi.png)" in md and "](figure_spi.png)" in md and "](binarized.png)" in md
+    assert "](figure_diapi.png)" in md and "](figure_spi.png)" in md and "](binarized.png)" in md
     assert (run_dir / "nsl2_table.md").read_text() in md
 
 
@@ -161,7 +161,7 @@ def test_report_explains_itself_on_its_first_screen(run_dir):
     assert re.search(r"afmsim \S+, commit [0-9a-f]{12}|commit unknown", provenance) and "UTC" in provenance
     assert re.search(r"<details><summary>Scenario \(YAML\)</summary>\s*<pre>", page)
     assert "<details><summary>3D renders" in page or "3D renders skipped" in page
-    assert "<figcaption><b>figure_none.png</b> — Paper Fig. 10–13 analogue" in page
+    assert "<figcaption><b>figure_none.png</b> — Controller none, experiment 1 (paper Fig. 10–13 analogue)" in page
 
 
 def test_height_images_have_data_limits_and_out_of_range_markers():
@@ -212,7 +212,7 @@ def test_cli_run_records_timings_and_renders_none_writes_no_render(tmp_path):
                                        "--renders", "none"])
     assert outcome.exit_code == 0, outcome.output
     assert not list(out.glob("render_*.png"))
-    assert (out / "figure_none.png").is_file() and (out / "image_none.png").is_file()
+    assert (out / "figure_none.png").is_file() and not list(out.glob("image_*.png"))
     timings = json.loads((out / "manifest.json").read_text())["timings"]
     assert {"simulate_s", "metrics_s", "report_s", "total_s"} <= set(timings)
     assert 0 < timings["simulate_s"] < timings["total_s"] and timings["report_s"] < timings["total_s"]
@@ -275,7 +275,7 @@ def test_a_render_process_that_crashes_leaves_a_warning_and_no_partial_file(tmp_
     the signal, the caller lives on, and no partial render file is left."""
     from functools import partial
 
-    from afmsim.report.run_output import start_renders
+    from afmsim.report.render_process import start_renders
 
     target = tmp_path / "render_none_trace.png"
     paths, warning = start_renders(partial(_write_then_crash, None, target), [target])()
@@ -284,3 +284,37 @@ def test_a_render_process_that_crashes_leaves_a_warning_and_no_partial_file(tmp_
     blank = tmp_path / "render_sample.png"
     paths, warning = start_renders(partial(_draw_blank, None, blank), [blank])()
     assert paths == [] and "came out blank" in warning and "\n" not in warning
+
+
+def _write_marker(path):
+    path.write_text("drawn")
+    return [path]
+
+
+def _hang(path):
+    import time
+
+    path.write_text("half")
+    time.sleep(600)
+
+
+def test_a_warm_render_process_draws_what_it_is_sent_and_a_hung_one_is_stopped(tmp_path, monkeypatch):
+    """The render process started before the simulation draws the job sent later; one that hangs
+    is killed after the timeout with a one-line warning and no partial file; one closed unused ends."""
+    from functools import partial
+
+    from afmsim.report import render_process
+    from afmsim.report.render_process import RenderProcess
+
+    target = tmp_path / "render_sample.png"
+    process = RenderProcess(warm=False)
+    assert process.submit(partial(_write_marker, target), [target])() == ([target], None)
+    assert target.read_text() == "drawn"
+    monkeypatch.setattr(render_process, "RENDER_TIMEOUT_S", 0.5)
+    hung = tmp_path / "render_none_trace.png"
+    paths, warning = RenderProcess(warm=False).submit(partial(_hang, hung), [hung])()
+    assert paths == [] and "no render after 1 s" in warning and "\n" not in warning
+    assert not hung.exists()
+    unused = RenderProcess(warm=False)
+    unused.close()
+    assert not unused._process.is_alive() and unused._process.exitcode == 0

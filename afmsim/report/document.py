@@ -284,17 +284,14 @@ _RUN_SCALE = ("heights above the substrate on the run's colour scale (0.1st–99
               "the run; blue = below, cyan = above the range)")
 
 
-def _image_caption(name: str) -> str:
-    return (f"Controller {name}, experiment 1: trace (left → right) and retrace (right → left), {_RUN_SCALE}; "
-            "right: trace − retrace in nm on one symmetric scale for all controllers (red: the trace is higher). "
-            "A perfect stage leaves only noise there; hysteresis leaves a red/blue pair on each feature edge.")
-
-
 def _figure_caption(name: str, kind: str) -> str:
     line = ("the averaged profile across the lines" if kind == "grating" else
             "the scan line through the central lens (white cross in (a); its trace position dashed in (b))")
-    return (f"Paper Fig. 10–13 analogue, controller {name}: (a) trace, (b) retrace ({_RUN_SCALE}); (c) {line}, "
-            "trace solid, retrace dashed; (d) the grey box of (c), magnified where trace and retrace differ most.")
+    return (f"Controller {name}, experiment 1 (paper Fig. 10–13 analogue): (a) trace (left → right) and (b) retrace "
+            f"(right → left), {_RUN_SCALE}; (c) trace − retrace in nm on one symmetric scale for all controllers "
+            "(red: the trace is higher) — a perfect stage leaves only noise there, hysteresis a red/blue pair on each "
+            f"feature edge; (d) {line}, trace solid, retrace dashed; (e) the grey box of (d), magnified where trace "
+            "and retrace differ most.")
 
 
 def write_report(folder, *, result, metrics: dict, nsl2_md: str, scenario_yaml: str, figures: list, renders: list,
@@ -327,16 +324,17 @@ def write_report(folder, *, result, metrics: dict, nsl2_md: str, scenario_yaml: 
                                           "`manifest.json` (package versions, timings, command line).")]
     blocks += [("h2", "Trace vs retrace: the uncompensated and the best controller")]
     for name in key:
-        blocks += fig(f"image_{name}.png", _image_caption(name)) + fig(f"figure_{name}.png", _figure_caption(name, kind))
+        blocks += fig(f"figure_{name}.png", _figure_caption(name, kind))
     folded = []
     if others:
         folded.append(("details", f"Every other controller ({', '.join(others)}): trace, retrace, difference, "
-                                  "Fig. 10–13 analogue",
-                       [b for n in others for b in fig(f"image_{n}.png", _image_caption(n))
-                        + fig(f"figure_{n}.png", _figure_caption(n, kind))]))
+                                  "cross-section",
+                       [b for n in others for b in fig(f"figure_{n}.png", _figure_caption(n, kind))]))
     folded.append(("details", "Binarized images (what NSL2 compares)",
-                   fig("binarized.png", "Trace and retrace of every controller binarized at their mean height (eq. 8); "
-                                        "red pixels differ — NSL2 counts them (≈ 2 × their number).")))
+                   fig("binarized.png", "Trace and retrace of every controller, each binarized at its own mean height "
+                                        "(eq. 8) and overlaid: white/black where they agree, red where only the trace "
+                                        "is above its mean, blue where only the retrace is — NSL2 counts these "
+                                        "pixels (≈ 2 × their number).")))
     render_blocks = [b for p in renders if Path(p).name in pngs for b in fig(
         Path(p).name, "3D view, heights above the substrate; one colour range and one vertical exaggeration for the "
                       "sample and every scan of the run (written in the view).")]

@@ -1,6 +1,6 @@
 """Matplotlib height images of a run, on honest colour scales.
 
-Conventions shared by every 2-D height image of a run (``image_*.png``, ``figure_*.png``):
+Conventions shared by every 2-D height image of a run (``figure_*.png``):
 
 * heights are drawn **above the substrate**: each image's substrate level is the commonest level
   among its pixels below the image mean (the background that NSL2's binarization, eq. 8, also sees;
@@ -16,8 +16,8 @@ Conventions shared by every 2-D height image of a run (``image_*.png``, ``figure
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import matplotlib
 
@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 
 from afmsim.samples.heightmap import HeightMap  # noqa: E402
 
-__all__ = ["plot_trace_retrace", "height_extent_um", "substrate_level", "above_substrate", "robust_limits",
+__all__ = ["difference_cmap", "fixed_title_height", "height_extent_um", "substrate_level", "above_substrate", "robust_limits",
            "ColourScale", "run_colour_scales", "height_cmap", "show_height", "colour_extend", "PERCENTILES"]
 
 UM, NM = 1e-6, 1e-9
@@ -110,38 +110,19 @@ def show_height(ax, hmap: HeightMap, limits_nm) -> matplotlib.image.AxesImage:
     return shown
 
 
-def plot_trace_retrace(trace: HeightMap, retrace: HeightMap, path, *, title: str, scale: ColourScale | None = None) -> Path:
-    """Trace, retrace (above substrate, run colour scale) and trace − retrace (nm), axes in µm.
+def difference_cmap():
+    """The trace − retrace colour map: red where the trace is higher, with over/under colours."""
+    return plt.get_cmap("RdBu_r").with_extremes(under="#301060", over="#602000")
 
-    ``scale`` is the run's :class:`ColourScale` (by default this pair's own).
+
+def fixed_title_height(plot):
+    """Draw ``plot``'s axes with their titles at a fixed height (``axes.titley`` = 1).
+
+    By default matplotlib measures every tick label of every axes at each draw to lift the titles
+    clear of top-side ticks, which these figures do not have: about a tenth of their drawing time.
     """
-    scale = scale or run_colour_scales({"": (trace, retrace)})
-    fig = plt.figure(figsize=(15, 4.9))
-    # Fixed grid (faster than a layout engine): two equal height panels and their bar, a gap, the difference and its bar.
-    grid = fig.add_gridspec(1, 6, width_ratios=[1, 1, 0.05, 0.3, 1, 0.05], left=0.055, right=0.95, bottom=0.12,
-                            top=0.86, wspace=0.08)
-    axes = [fig.add_subplot(grid[0])]
-    axes += [fig.add_subplot(grid[1], sharex=axes[0], sharey=axes[0]), fig.add_subplot(grid[4], sharex=axes[0],
-                                                                                     sharey=axes[0])]
-    heights = np.concatenate([above_substrate(m).z.ravel() / NM for m in (trace, retrace)])
-    for ax, image, label in zip(axes, (trace, retrace), ("trace (left → right)", "retrace (right → left)")):
-        shown = show_height(ax, image, scale.height_nm)
-        ax.set_title(label)
-    axes[0].set_ylabel("y (µm)")
-    axes[1].tick_params(labelleft=False)
-    fig.colorbar(shown, cax=fig.add_subplot(grid[2]), label="height above substrate (nm)",
-                 extend=colour_extend(heights, *scale.height_nm))
-    diff = (trace.z - retrace.z) / NM
-    lim = scale.difference_nm
-    cmap = plt.get_cmap("RdBu_r").with_extremes(under="#301060", over="#602000")
-    shown = axes[2].imshow(diff, origin="lower", extent=height_extent_um(trace), cmap=cmap, vmin=-lim, vmax=lim,
-                           interpolation="nearest")
-    axes[2].set_title("trace − retrace (mismatch)")
-    axes[2].set_xlabel("x (µm)")
-    axes[2].tick_params(labelleft=False)
-    fig.colorbar(shown, cax=fig.add_subplot(grid[5]), label="trace − retrace (nm)", extend=colour_extend(diff, -lim, lim))
-    fig.suptitle(title)
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    @functools.wraps(plot)
+    def drawn_with_fixed_titles(*args, **kwargs):
+        with plt.rc_context({"axes.titley": 1.0}):
+            return plot(*args, **kwargs)
+    return drawn_with_fixed_titles

@@ -1,9 +1,9 @@
 """Matplotlib analogues of the paper's figures.
 
-* :func:`plot_scan_figure` — Fig. 10–13: (a) trace, (b) retrace, (c) the cross-section through the
-  central micro-lens (trace vs retrace) or, for a grating, the row-averaged profile across the
-  lines, (d) its magnified part where trace and retrace differ most.
-* :func:`plot_binarized` — the binarized trace/retrace images that NSL2 (eq. 8) compares.
+* :func:`plot_scan_figure` — Fig. 10–13: (a) trace, (b) retrace, (c) trace − retrace, (d) the
+  cross-section through the central micro-lens (trace vs retrace) or, for a grating, the
+  row-averaged profile across the lines, (e) its magnified part where trace and retrace differ most.
+* :func:`plot_binarized` — the binarized trace/retrace images that NSL2 (eq. 8) compares, overlaid.
 * :func:`plot_identification_loops` / :func:`plot_identification_errors` — Fig. 6 / Fig. 7:
   measured loop vs model loops, and trace/retrace voltage errors vs displacement.
 * :func:`plot_time_saving` — Fig. 8: DIAPI vs IIAPI identification time saving over M and N.
@@ -29,12 +29,14 @@ from .figures import (  # noqa: E402
     ColourScale,
     above_substrate,
     colour_extend,
+    difference_cmap,
+    fixed_title_height,
     height_extent_um,
     run_colour_scales,
     show_height,
 )
 
-__all__ = ["plot_scan_figure", "plot_binarized", "plot_identification_loops", "plot_identification_errors",
+__all__ = ["plot_scan_figure", "plot_binarized", "binarized_overlay", "plot_identification_loops", "plot_identification_errors",
            "plot_time_saving", "central_lens"]
 
 UM, NM = 1e-6, 1e-9
@@ -59,35 +61,52 @@ def _cross(ax, xy, style):
                 linestyle="none", **style)
 
 
+@fixed_title_height
 def plot_scan_figure(trace: HeightMap, retrace: HeightMap, path, *, kind: str, title: str,
                      scale: ColourScale | None = None) -> Path:
-    """Fig. 10–13 analogue for one controller: (a) trace, (b) retrace, (c) a cross-section, (d) its zoom.
+    """One controller's scan, Fig. 10–13 analogue: (a) trace, (b) retrace, (c) trace − retrace,
+    (d) a cross-section, (e) its zoom.
 
     (a)/(b): heights above the substrate on the run's colour scale (``scale``, see
     :mod:`afmsim.report.figures`; by default this pair's own), equal panels sharing axes.
-    (c) Micro-lenses (and other samples): the scan line through the central lens of the trace
+    (c) trace − retrace (raw heights, nm) on the run's symmetric difference scale: what a perfect
+    stage leaves as noise and hysteresis as a red/blue pair on each feature edge.
+    (d) Micro-lenses (and other samples): the scan line through the central lens of the trace
     image (white cross; its trace position is shown dashed on the retrace, as in Fig. 10), trace
-    vs retrace heights; gratings: the profile averaged over all lines. (d) The part of (c) in the
+    vs retrace heights; gratings: the profile averaged over all lines. (e) The part of (d) in the
     grey box, around the largest trace/retrace difference (paper Figs. 11–13's magnified view), in
     its own panel so that it hides nothing.
     """
     scale = scale or run_colour_scales({"": (trace, retrace)})
-    fig = plt.figure(figsize=(17, 4.9))
-    # Fixed grid (faster than a layout engine); columns 3 and 5 are gaps for the labels beside them.
-    grid = fig.add_gridspec(1, 7, width_ratios=[1, 1, 0.05, 0.42, 1.25, 0.2, 0.8], left=0.045, right=0.99,
-                            bottom=0.12, top=0.86, wspace=0.08)
-    ax_a = fig.add_subplot(grid[0])
-    ax_b = fig.add_subplot(grid[1], sharex=ax_a, sharey=ax_a)
-    ax_bar, ax, ax_zoom = fig.add_subplot(grid[2]), fig.add_subplot(grid[4]), fig.add_subplot(grid[6])
+    fig = plt.figure(figsize=(15, 9.4))
+    # Fixed grids (faster than a layout engine): the three maps and their bars above, the
+    # cross-section and its zoom below; the narrow columns are gaps for the labels beside them.
+    top = fig.add_gridspec(1, 6, width_ratios=[1, 1, 0.05, 0.3, 1, 0.05], left=0.055, right=0.95, bottom=0.53,
+                           top=0.905, wspace=0.08)
+    bottom = fig.add_gridspec(1, 3, width_ratios=[1.6, 0.12, 1], left=0.055, right=0.95, bottom=0.065, top=0.43,
+                              wspace=0.08)
+    ax_a = fig.add_subplot(top[0])
+    ax_b = fig.add_subplot(top[1], sharex=ax_a, sharey=ax_a)
+    ax_c = fig.add_subplot(top[4], sharex=ax_a, sharey=ax_a)
+    ax, ax_zoom = fig.add_subplot(bottom[0]), fig.add_subplot(bottom[2])
     centre_t = central_lens(trace) if kind != "grating" else None
     centre_r = central_lens(retrace) if kind != "grating" else None
-    for a, image, label in zip((ax_a, ax_b), (trace, retrace), ("(a) trace", "(b) retrace")):
+    for a, image, label in zip((ax_a, ax_b), (trace, retrace), ("(a) trace (left → right)", "(b) retrace (right → left)")):
         shown = show_height(a, image, scale.height_nm)
         a.set_title(label)
     ax_a.set_ylabel("y (µm)")
-    ax_b.tick_params(labelleft=False)
+    for a in (ax_b, ax_c):
+        a.tick_params(labelleft=False)
     heights = np.concatenate([above_substrate(m).z.ravel() / NM for m in (trace, retrace)])
-    fig.colorbar(shown, cax=ax_bar, label="height above substrate (nm)", extend=colour_extend(heights, *scale.height_nm))
+    fig.colorbar(shown, cax=fig.add_subplot(top[2]), label="height above substrate (nm)",
+                 extend=colour_extend(heights, *scale.height_nm))
+    diff = (trace.z - retrace.z) / NM
+    lim = scale.difference_nm
+    shown = ax_c.imshow(diff, origin="lower", extent=height_extent_um(trace), cmap=difference_cmap(), vmin=-lim,
+                        vmax=lim, interpolation="nearest")
+    ax_c.set_title("(c) trace − retrace (mismatch)")
+    ax_c.set_xlabel("x (µm)")
+    fig.colorbar(shown, cax=fig.add_subplot(top[5]), label="trace − retrace (nm)", extend=colour_extend(diff, -lim, lim))
     _cross(ax_a, centre_t, {})
     if centre_t is not None:
         ax_b.plot(centre_t[0] / UM, centre_t[1] / UM, marker="+", markersize=16, markeredgewidth=1.2,
@@ -99,13 +118,13 @@ def plot_scan_figure(trace: HeightMap, retrace: HeightMap, path, *, kind: str, t
     t_prof, r_prof = above_substrate(trace).z, above_substrate(retrace).z
     if kind == "grating":
         t_prof, r_prof = t_prof.mean(axis=0), r_prof.mean(axis=0)
-        ax.set_title("(c) profile averaged over all lines")
+        ax.set_title("(d) profile averaged over all lines")
     else:
         y0 = centre_t[1] if centre_t is not None else trace.y.mean()
         row = int(np.clip(np.rint((y0 - trace.origin[1]) / trace.pixel_size[1]), 0, trace.shape[0] - 1))
         t_prof, r_prof = t_prof[row], r_prof[row]
         what = "central lens" if centre_t is not None else "image centre"
-        ax.set_title(f"(c) line through the {what}, y = {trace.y[row] / UM:.2f} µm")
+        ax.set_title(f"(d) line through the {what}, y = {trace.y[row] / UM:.2f} µm")
         for a in (ax_a, ax_b):
             a.axhline(trace.y[row] / UM, color="cyan", linewidth=0.8, alpha=0.8)
     for target in (ax, ax_zoom):
@@ -117,7 +136,7 @@ def plot_scan_figure(trace: HeightMap, retrace: HeightMap, path, *, kind: str, t
         ax.axvline(centre_t[0] / UM, color="tab:blue", linewidth=0.7, alpha=0.5)
     if centre_r is not None:
         ax.axvline(centre_r[0] / UM, color="tab:red", linewidth=0.7, alpha=0.5, linestyle="--")
-    ax.set_ylabel("height (nm)")
+    ax.set_ylabel("height above substrate (nm)")
     ax.legend(loc="best", fontsize=8)
     k = int(np.argmax(np.abs(t_prof - r_prof)))
     half = max(2, len(x_um) // 16)
@@ -126,7 +145,7 @@ def plot_scan_figure(trace: HeightMap, retrace: HeightMap, path, *, kind: str, t
     pad = max(0.05 * np.ptp(window), 0.5)
     ax_zoom.set_xlim(x_um[lo_i], x_um[hi_i])
     ax_zoom.set_ylim(window.min() - pad, window.max() + pad)
-    ax_zoom.set_title(f"(d) zoom: |T − R| up to {abs(t_prof[k] - r_prof[k]) / NM:.0f} nm")
+    ax_zoom.set_title(f"(e) zoom: |T − R| up to {abs(t_prof[k] - r_prof[k]) / NM:.0f} nm")
     ax.add_patch(plt.Rectangle((x_um[lo_i], window.min() - pad), x_um[hi_i] - x_um[lo_i], np.ptp(window) + 2 * pad,
                                fill=False, edgecolor="0.35", linewidth=1.0))
     fig.suptitle(title)
@@ -136,32 +155,53 @@ def plot_scan_figure(trace: HeightMap, retrace: HeightMap, path, *, kind: str, t
     return path
 
 
+#: Colours of :func:`plot_binarized`: (trace, retrace) binarized values → RGB.
+BINARIZED_COLOURS = {(0, 0): (0.0, 0.0, 0.0), (1, 1): (1.0, 1.0, 1.0), (1, 0): (0.85, 0.1, 0.1), (0, 1): (0.15, 0.45, 1.0)}
+
+
+def binarized_overlay(trace: np.ndarray, retrace: np.ndarray) -> np.ndarray:
+    """RGB image (lines, pixels, 3) of two binarized images: black where both are below their
+    mean, white where both are above, red where only the trace is, blue where only the retrace is."""
+    bt, br = binarize(trace).astype(int), binarize(retrace).astype(int)
+    rgb = np.empty(bt.shape + (3,))
+    for (t, r), colour in BINARIZED_COLOURS.items():
+        rgb[(bt == t) & (br == r)] = colour
+    return rgb
+
+
+@fixed_title_height
 def plot_binarized(images: dict, path, *, title: str) -> Path:
-    """Binarized trace, retrace (threshold = each image's mean, eq. 8) and their disagreement,
-    one row per controller; NSL2 in the row label. ``images``: controller → (trace, retrace)."""
+    """What NSL2 (eq. 8) compares, one panel per controller: trace and retrace binarized at their
+    own mean height, overlaid (:func:`binarized_overlay`: red = above the mean in the trace only,
+    blue = in the retrace only — the pixels NSL2 counts); NSL2 in the panel title. ``images``:
+    controller → (trace, retrace)."""
     n = len(images)
-    height = 2.9 * n + 0.8
-    fig, axes = plt.subplots(n, 3, figsize=(10, height), squeeze=False, sharex=True, sharey=True)
-    # Fixed margins in inches (the suptitle above the first row's titles, x labels below the last row).
-    fig.subplots_adjust(left=0.1, right=0.98, bottom=0.45 / height, top=1 - 0.75 / height, wspace=0.2,
-                        hspace=0.5 / 2.9 * 2)
-    for row, (name, (trace, retrace)) in zip(axes, images.items()):
-        bt, br = binarize(trace.z), binarize(retrace.z)
+    columns = min(n, 4)
+    rows = -(-n // columns)
+    height = 3.3 * rows + 0.9
+    fig, axes = plt.subplots(rows, columns, figsize=(3.2 * columns + 0.6, height), squeeze=False, sharex=True,
+                             sharey=True)
+    # Fixed margins in inches (the suptitle and the key above the first row's titles).
+    fig.subplots_adjust(left=0.6 / (3.2 * columns + 0.6), right=0.98, bottom=0.5 / height, top=1 - 0.85 / height,
+                        wspace=0.12, hspace=0.35)
+    for ax, (name, (trace, retrace)) in zip(axes.ravel(), images.items()):
         try:
-            d = f"NSL2 = {nsl2(bt, br):,.0f}"
+            score = f"NSL2 = {nsl2(binarize(trace.z), binarize(retrace.z)):,.0f}"
         except ValueError:
-            d = "NSL2 undefined"
-        for ax, img, label, cmap in zip(row, (bt, br, np.abs(bt - br)),
-                                        ("trace (binarized)", "retrace (binarized)", "pixels that differ"),
-                                        ("gray", "gray", "Reds")):
-            ax.imshow(img, origin="lower", extent=height_extent_um(trace), cmap=cmap, vmin=0, vmax=1,
-                      interpolation="nearest")
-            ax.set_title(f"{name}: {label}", fontsize=9)
-            ax.tick_params(labelsize=7)
-        row[0].set_ylabel(f"{d}\ny (µm)", fontsize=9)
+            score = "NSL2 undefined"
+        ax.imshow(binarized_overlay(trace.z, retrace.z), origin="lower", extent=height_extent_um(trace),
+                  interpolation="nearest")
+        ax.set_title(f"{name}: {score}", fontsize=9)
+        ax.tick_params(labelsize=7)
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(False)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("y (µm)", fontsize=8)
     for ax in axes[-1]:
         ax.set_xlabel("x (µm)", fontsize=8)
     fig.suptitle(title)
+    fig.text(0.5, 1 - 0.55 / height, "white: above the mean in both · black: below in both · red: trace only · "
+             "blue: retrace only (the pixels NSL2 counts)", ha="center", fontsize=8)
     path = Path(path)
     fig.savefig(path, dpi=_DPI)
     plt.close(fig)

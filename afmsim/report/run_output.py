@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import multiprocessing
 import time
-from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
@@ -16,13 +14,14 @@ from afmsim.runio import git_revision, versions, write_json
 from afmsim.workers import ordered_map, worker_pool
 
 from .document import best_controller, write_report
-from .figures import plot_trace_retrace, run_colour_scales
+from .figures import run_colour_scales
 from .gwy import write_gwy
 from .paper_figures import plot_binarized, plot_scan_figure
-from .renders import render_jobs, render_names, render_unavailable
+from .render_process import RenderProcess, start_renders
+from .renders import render_jobs, render_names
 from .tables import nsl2_markdown, write_nsl2_table
 
-__all__ = ["write_run", "gwy_channels", "start_renders", "RENDER_CHOICES"]
+__all__ = ["write_run", "gwy_channels", "RENDER_CHOICES"]
 
 #: ``renders=`` of :func:`write_run`: no 3D renders, the key ones (sample, ``none`` and the best
 #: controller's trace), or all (every controller's trace and retrace, and the sample).
@@ -42,19 +41,22 @@ def gwy_channels(frames: list, truth) -> dict:
     return channels
 
 
-def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=None, workers: int = 1) -> list[Path]:
+def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=None, workers: int = 1,
+              render_process: RenderProcess | None = None) -> list[Path]:
     """Write a run's files into ``folder`` and return their paths.
 
     ``metrics.json``, ``scenario.yaml``, ``images.npz``, ``images.gwy`` (every experiment, with the
-    line rate and the scenario in each channel's metadata), per controller ``image_<c>.png``
-    (trace, retrace, trace − retrace) and ``figure_<c>.png`` (Fig. 10–13 analogue),
+    line rate and the scenario in each channel's metadata), per controller ``figure_<c>.png``
+    (trace, retrace, trace − retrace, cross-section and zoom: the Fig. 10–13 analogue),
     ``binarized.png``, ``nsl2_table.md/.csv`` (Table 3/4 analogue), 3D ``render_*.png`` as chosen
     by ``renders`` (:data:`RENDER_CHOICES`; skipped with a warning in the report where this machine
     cannot render), ``report.html`` (self-contained) and ``report.md``.
 
     Figures are drawn on ``workers`` forked processes (:mod:`afmsim.workers`), the renders beside
-    them in one forked process of their own (:func:`start_renders`); ``progress(stage, done,
-    total)`` hears of the "figures", "renders" and "report" stages.
+    them in one forked process of their own: ``render_process`` when given (a
+    :class:`~afmsim.report.render_process.RenderProcess` started before the simulation has its
+    start-up cost paid already; it is used or closed here), else a fresh one. ``progress(stage,
+    done, total)`` hears of the "figures", "renders" and "report" stages.
 
     ``images.npz`` holds ``trace_<controller>``/``retrace_<controller>`` of experiment 1 (heights in
     metres, rows = lines, columns = pixels left → right), ``truth`` and ``dilated`` (the sample and
@@ -77,8 +79,6 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
         title = f"{scenario.name}: controller '{name}' (experiment 1)"
         figure_jobs.append((plot_scan_figure, (trace, retrace, folder / f"figure_{name}.png"),
                             {"kind": kind, "title": title, "scale": scale}))
-        figure_jobs.append((plot_trace_retrace, (trace, retrace, folder / f"image_{name}.png"),
-                            {"title": title, "scale": scale}))
     if pairs:
         figure_jobs.append((plot_binarized, (pairs, folder / "binarized.png"),
                             {"title": f"{scenario.name}: binarized images used for NSL2 (experiment 1)"}))
@@ -87,8 +87,14 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
     render_files = [] if renders == "none" else [folder / n for n in render_names(list(pairs), renders, best)]
     if progress is not None and render_files:
         progress("renders", 0, len(render_files))
-    renders_done = start_renders(partial(_draw_renders, pairs, result.truth, result.mesh, folder, scenario.name,
-                                         renders, best), render_files)
+    draw = partial(_draw_renders, pairs, result.truth, result.mesh, folder, scenario.name, renders, best)
+    if render_process is None:
+        renders_done = start_renders(draw, render_files)
+    elif render_files:
+        renders_done = render_process.submit(draw, render_files)
+    else:
+        render_process.close()
+        renders_done = start_renders(draw, [])
     try:
         with worker_pool(max(1, workers)) as executor:
             figures = ordered_map(executor, _call, figure_jobs, ticker("figures", len(figure_jobs)), wait=False)
@@ -123,58 +129,6 @@ def _draw_renders(pairs, truth, mesh, folder, name, which, best) -> list[Path]:
     """The run's renders (:func:`afmsim.report.renders.render_jobs`), one after the other: VTK's
     first-render set-up (EGL context, shaders; about two renders' worth) is paid once."""
     return [func(*args) for func, args in render_jobs(pairs, truth, mesh, folder, name=name, which=which, best=best)]
-
-
-def start_renders(draw, files) -> Callable[[], tuple[list[Path], str | None]]:
-    """Run ``draw()`` (it writes the PNGs ``files`` and returns their paths) and return a function
-    that waits for it: ``(paths, warning)``.
-
-    ``draw`` runs in a forked process of its own, beside the figures; it imports pyvista/VTK there,
-    off the caller's path. A GL stack that crashes or draws blank kills or fails that process only:
-    the run goes on with ``warning`` (one line, why) and no renders, partial files removed. That
-    process is the rendering check, so a run needs no separate probe
-    (:func:`afmsim.render.rendering_available`, used where ``fork`` is missing).
-    """
-    if not files:
-        return lambda: ([], None)
-    if "fork" not in multiprocessing.get_all_start_methods():  # pragma: no cover - not on Linux
-        warning = render_unavailable()
-        paths = [] if warning else draw()
-        return lambda: (paths, warning)
-    receive, send = multiprocessing.Pipe(duplex=False)
-    process = multiprocessing.get_context("fork").Process(target=_draw_and_report, args=(draw, send), daemon=True)
-    process.start()
-    send.close()
-
-    def wait():
-        try:
-            answer = receive.recv()
-        except EOFError:  # the process died without a word
-            answer = None
-        process.join()
-        if isinstance(answer, list) and process.exitcode == 0:
-            return answer, None
-        if isinstance(answer, str):
-            why = answer
-        elif process.exitcode is not None and process.exitcode < 0:
-            why = f"the rendering process was killed by signal {-process.exitcode} (GL stack crashed)"
-        else:
-            why = f"the rendering process failed (exit {process.exitcode})"
-        for path in files:
-            Path(path).unlink(missing_ok=True)
-        return [], (f"3D renders skipped: off-screen rendering failed here ({why}) — on Debian/Ubuntu install "
-                    "libegl1 and libgl1-mesa-dri")
-    return wait
-
-
-def _draw_and_report(draw, send) -> None:
-    """In the render process: ``draw()``, then send its paths, or the one-line reason it failed."""
-    try:
-        answer = draw()
-    except Exception as error:  # noqa: BLE001 - any failure to render is reported, the run stands
-        answer = f"{type(error).__name__}: {(str(error).splitlines() or [''])[0]}"
-    send.send(answer)
-    send.close()
 
 
 class _Ticker:

@@ -2,7 +2,7 @@
 
     python docs/gallery/regenerate.py
 
-* ``quick_image_none.png``, ``quick_figure_none.png``, ``quick_render_trace.png``:
+* ``quick_figure_none.png``, ``quick_binarized.png``, ``quick_render_trace.png``:
   ``scenarios/quick.yaml`` (experiment 1, all four controllers, so the colour scale is the run's);
 * ``grating_none.png``, ``grating_iiapi.png``: ``scenarios/grating.yaml``, experiment 1 with
   the controllers none and IIAPI only (the same experiment-1 scans as the full run; the colour
@@ -38,8 +38,8 @@ def main() -> None:
         quick.mkdir()
         scenario = load_scenario(ROOT / "scenarios" / "quick.yaml").model_copy(update={"experiments": 1})
         write_run(run_scenario(scenario, workers=2), quick, renders="key", workers=2)
-        _shrink(quick / "image_none.png", HERE / "quick_image_none.png", 1100)
         _shrink(quick / "figure_none.png", HERE / "quick_figure_none.png", 1100)
+        _shrink(quick / "binarized.png", HERE / "quick_binarized.png", 1100)
         _shrink(quick / "render_none_trace.png", HERE / "quick_render_trace.png", 560)
         grating = Path(tmp) / "grating"
         grating.mkdir()
@@ -47,7 +47,7 @@ def main() -> None:
             update={"experiments": 1, "controllers": ["none", "iiapi"]})
         write_run(run_scenario(scenario, workers=2), grating, renders="none", workers=2)
         for name in ("none", "iiapi"):
-            _shrink(grating / f"image_{name}.png", HERE / f"grating_{name}.png", 1100)
+            _shrink(grating / f"figure_{name}.png", HERE / f"grating_{name}.png", 1100)
 
 
 if __name__ == "__main__":
