@@ -34,6 +34,7 @@ from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Fi
 
 from afmsim.compensation import CONTROLLER_NAMES
 from afmsim.hysteresis.fitting import MIN_SAMPLES_PER_WEIGHT
+from afmsim.paper import IDENTIFICATION_PROTOCOL
 from afmsim.samples.loaders import MAP_SUFFIXES, MESH_SUFFIXES
 from afmsim.stage import HYSTERESIS_MODELS, default_stage
 
@@ -235,11 +236,12 @@ class ScanSpec(_Block):
 
 
 class IdentificationSpec(_Block):
-    """The identification experiment (paper §3.2): triangle wave, capacitive sensor."""
+    """The identification experiment (paper §3.2): triangle wave, capacitive sensor; the defaults
+    are the paper's protocol (:data:`afmsim.paper.IDENTIFICATION_PROTOCOL`)."""
 
-    amplitude_V: Range(0.1, 10, "V") = 9.1
-    frequency_hz: Range(0.01, 100, "Hz") = 1.0
-    sample_rate_hz: Range(10, 1e5, "Hz") = 1000.0
+    amplitude_V: Range(0.1, 10, "V") = IDENTIFICATION_PROTOCOL["amplitude_V"]
+    frequency_hz: Range(0.01, 100, "Hz") = IDENTIFICATION_PROTOCOL["frequency_hz"]
+    sample_rate_hz: Range(10, 1e5, "Hz") = IDENTIFICATION_PROTOCOL["sample_rate_hz"]
     n_operators: IntRange(1, 50) = 10
     range: Literal["full", "scan"] = "full"
 

@@ -30,3 +30,11 @@ def test_reports_and_identification_read_the_same_module():
 
     assert identification.TABLE2_MEANS is paper.TABLE2_MEANS
     assert tables.PAPER_TABLE3 is paper.TABLE3 and tables.PAPER_TABLE4 is paper.TABLE4
+
+
+def test_scenario_identification_defaults_are_the_papers_protocol():
+    from afmsim.scenario import IdentificationSpec
+
+    spec = IdentificationSpec()
+    for key in ("amplitude_V", "frequency_hz", "sample_rate_hz"):
+        assert getattr(spec, key) == paper.IDENTIFICATION_PROTOCOL[key]
