@@ -13,7 +13,10 @@ files.
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
+import os
+import signal
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -24,6 +27,7 @@ __all__ = ["RenderProcess", "start_renders", "RENDER_TIMEOUT_S"]
 RENDER_TIMEOUT_S = 120.0
 
 _ADVICE = "on Debian/Ubuntu install libegl1 and libgl1-mesa-dri"
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
 class RenderProcess:
@@ -43,7 +47,7 @@ class RenderProcess:
         self._answers, answer_end = multiprocessing.Pipe(duplex=False)
         job_end, self._jobs = multiprocessing.Pipe(duplex=False)
         self._process = multiprocessing.get_context("fork").Process(
-            target=_serve, args=(job_end, answer_end, warm, (self._jobs, self._answers)), daemon=True)
+            target=_serve, args=(job_end, answer_end, warm, (self._jobs, self._answers), os.getpid()), daemon=True)
         self._process.start()
         answer_end.close()
         job_end.close()
@@ -109,13 +113,15 @@ def start_renders(draw, files) -> Callable[[], tuple[list[Path], str | None]]:
     return RenderProcess(warm=False).submit(draw, files)
 
 
-def _serve(jobs, answers, warm: bool, callers_ends) -> None:
+def _serve(jobs, answers, warm: bool, callers_ends, parent: int) -> None:
     """In the render process: warm up, wait for ``draw``, run it, send its paths or the one-line
     reason it failed. A warm-up failure is kept and sent as the answer to the draw.
     ``callers_ends``, the caller's ends of both pipes, are closed here at once (a forked copy of
-    the job pipe's sending end would keep this process from ever reading its end)."""
+    the job pipe's sending end would keep this process from ever reading its end); ``parent`` is
+    the caller's process id."""
     for end in callers_ends:
         end.close()
+    _die_with_parent(parent)
     failure = None
     if warm:
         try:
@@ -148,6 +154,18 @@ def _warm_up() -> None:
     ramp = HeightMap(np.outer(np.ones(4), np.arange(4.0)) * 1e-9, (1e-6, 1e-6), (0.0, 0.0))
     with tempfile.TemporaryDirectory() as folder:
         render_height_map(ramp, Path(folder) / "warm-up.png", title="warm-up", window_size=(160, 120))
+
+
+def _die_with_parent(parent: int) -> None:
+    """Have the kernel kill this process when the caller dies (Linux ``PR_SET_PDEATHSIG``): a run
+    killed by a signal leaves no render process behind holding its terminal or pipes."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):  # pragma: no cover - not Linux: the daemon flag ends it at a normal exit
+        return
+    if os.getppid() != parent:  # the caller died before the line above
+        os._exit(0)
 
 
 def _one_line(error: Exception) -> str:
