@@ -393,7 +393,8 @@ def plot_image_diagnosis(design: ImageDesign, before: ImageFit, after: ImageFit,
 
 def diagnose_images(source, *, scenario=None, reference: str = "auto", baseline: str = "asymmetric",
                     channel: str | None = None, figure_path=None, rng_seed: int = 0) -> tuple[dict, str]:
-    """Diagnose a measured trace/retrace pair (``.npz``/``.gwy`` path or a dict of arrays).
+    """Diagnose a measured trace/retrace pair: a path of any file :func:`afmsim.readers.read_afm_file` reads, a
+    dict of arrays, or an :class:`~afmsim.diagnosis.images.record.ImageRecord` already loaded.
 
     ``scenario`` (a :class:`~afmsim.scenario.Scenario` or a YAML path) gives the imaged sample, the
     tip, the Z loop and the effects already modelled; without it the trace is the reference.
