@@ -179,6 +179,7 @@ def test_height_images_have_data_limits_and_out_of_range_markers():
     scale = run_colour_scales({"c": (trace, retrace)})
     low, high = scale.height_nm
     assert low < -55 and 295 < high < 305                         # from the data, not from a fixed 0
+    assert scale.height_extend == "both"                          # pixels beyond both percentiles: pointed ends
     fig, ax = plt.subplots()
     shown = show_height(ax, trace, scale.height_nm)
     assert shown.get_clim() == (low, high)
@@ -318,3 +319,31 @@ def test_a_warm_render_process_draws_what_it_is_sent_and_a_hung_one_is_stopped(t
     unused = RenderProcess(warm=False)
     unused.close()
     assert not unused._process.is_alive() and unused._process.exitcode == 0
+
+
+def test_a_scan_figure_redrawn_for_another_controller_shows_only_that_controller(tmp_path):
+    """ScanFigure is built once per run and redrawn per controller: a redraw replaces the maps, the
+    profiles and the markers of the previous controller instead of adding to them."""
+    import matplotlib.pyplot as plt
+
+    from afmsim.report.figures import run_colour_scales
+    from afmsim.report.paper_figures import ScanFigure
+    from afmsim.samples.heightmap import HeightMap
+
+    y, x = np.mgrid[0:48, 0:48] * 0.25e-6
+    lens = lambda cx: 1e-6 * np.clip(1 - ((x - cx) ** 2 + (y - 6e-6) ** 2) / (3e-6) ** 2, 0, None)  # noqa: E731
+    pairs = {"a": (HeightMap(lens(5.8e-6), (0.25e-6, 0.25e-6)), HeightMap(lens(6.4e-6), (0.25e-6, 0.25e-6))),
+             "b": (HeightMap(lens(6.0e-6), (0.25e-6, 0.25e-6)), HeightMap(lens(6.1e-6), (0.25e-6, 0.25e-6)))}
+    with ScanFigure(pairs["a"][0], kind="microlens", scale=run_colour_scales(pairs)) as figure:
+        counts = []
+        for name, (trace, retrace) in pairs.items():
+            figure.draw(trace, retrace, tmp_path / f"figure_{name}.png", title=name)
+            counts.append([len(ax.get_lines()) + len(ax.patches) for ax in figure.fig.axes])
+            np.testing.assert_allclose(figure.difference.get_array(), (trace.z - retrace.z) / 1e-9)
+            assert figure.fig._suptitle.get_text() == name
+        assert counts[0] == counts[1]
+        with pytest.raises(ValueError, match="grid"):
+            figure.draw(HeightMap(np.zeros((8, 8)), (1e-6, 1e-6)), HeightMap(np.zeros((8, 8)), (1e-6, 1e-6)),
+                        tmp_path / "x.png", title="x")
+    assert not plt.fignum_exists(figure.fig.number)
+    assert (tmp_path / "figure_b.png").stat().st_size > 10_000

@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 
 from afmsim.samples.heightmap import HeightMap  # noqa: E402
 
-__all__ = ["difference_cmap", "fixed_title_height", "height_extent_um", "substrate_level", "above_substrate", "robust_limits",
+__all__ = ["FIXED_TITLES", "difference_cmap", "fixed_title_height", "height_extent_um", "substrate_level", "above_substrate", "robust_limits",
            "ColourScale", "run_colour_scales", "height_cmap", "show_height", "colour_extend", "PERCENTILES"]
 
 UM, NM = 1e-6, 1e-9
@@ -77,18 +77,22 @@ def robust_limits(arrays, percentiles=PERCENTILES) -> tuple[float, float]:
 
 @dataclass(frozen=True)
 class ColourScale:
-    """Height limits (nm, above substrate) and the trace − retrace limit (nm) of one run."""
+    """Height limits (nm, above substrate) and the trace − retrace limit (nm) of one run, and the
+    ``extend`` of each colour bar (:func:`colour_extend` over every image of the run)."""
 
     height_nm: tuple[float, float]
     difference_nm: float
+    height_extend: str = "neither"
+    difference_extend: str = "neither"
 
 
 def run_colour_scales(pairs: dict) -> ColourScale:
     """The run's colour scales from ``{controller: (trace, retrace)}`` (:mod:`module doc <afmsim.report.figures>`)."""
-    heights = [above_substrate(m).z / NM for pair in pairs.values() for m in pair]
-    diffs = [np.abs(t.z - r.z) / NM for t, r in pairs.values()]
-    limit = float(np.percentile(np.concatenate([d.ravel() for d in diffs]), PERCENTILES[1]))
-    return ColourScale(robust_limits(heights), max(limit, 1e-3))
+    heights = np.concatenate([above_substrate(m).z.ravel() / NM for pair in pairs.values() for m in pair])
+    diffs = np.concatenate([(t.z - r.z).ravel() / NM for t, r in pairs.values()])
+    limit = max(float(np.percentile(np.abs(diffs), PERCENTILES[1])), 1e-3)
+    lo, hi = robust_limits([heights])
+    return ColourScale((lo, hi), limit, colour_extend(heights, lo, hi), colour_extend(diffs, -limit, limit))
 
 
 def height_cmap(name: str = "afmhot"):
@@ -115,14 +119,16 @@ def difference_cmap():
     return plt.get_cmap("RdBu_r").with_extremes(under="#301060", over="#602000")
 
 
-def fixed_title_height(plot):
-    """Draw ``plot``'s axes with their titles at a fixed height (``axes.titley`` = 1).
+#: Titles at a fixed height above their axes. By default matplotlib measures every tick label of
+#: every axes at each draw to lift the titles clear of top-side ticks, which these figures do not
+#: have: about a tenth of their drawing time.
+FIXED_TITLES = {"axes.titley": 1.0}
 
-    By default matplotlib measures every tick label of every axes at each draw to lift the titles
-    clear of top-side ticks, which these figures do not have: about a tenth of their drawing time.
-    """
+
+def fixed_title_height(plot):
+    """Make and draw ``plot``'s figure with :data:`FIXED_TITLES`."""
     @functools.wraps(plot)
     def drawn_with_fixed_titles(*args, **kwargs):
-        with plt.rc_context({"axes.titley": 1.0}):
+        with plt.rc_context(FIXED_TITLES):
             return plot(*args, **kwargs)
     return drawn_with_fixed_titles

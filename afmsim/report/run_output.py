@@ -16,7 +16,7 @@ from afmsim.workers import ordered_map, worker_pool
 from .document import best_controller, write_report
 from .figures import run_colour_scales
 from .gwy import write_gwy
-from .paper_figures import plot_binarized, plot_scan_figure
+from .paper_figures import plot_binarized, plot_scan_figures
 from .render_process import RenderProcess, start_renders
 from .renders import render_jobs, render_names
 from .tables import nsl2_markdown, write_nsl2_table
@@ -74,11 +74,13 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
     pairs = {name: (im.trace, im.retrace) for name, im in result.images.items()}
     best = best_controller(metrics)
     scale = run_colour_scales(pairs) if pairs else None
-    figure_jobs = []
-    for name, (trace, retrace) in pairs.items():
-        title = f"{scenario.name}: controller '{name}' (experiment 1)"
-        figure_jobs.append((plot_scan_figure, (trace, retrace, folder / f"figure_{name}.png"),
-                            {"kind": kind, "title": title, "scale": scale}))
+    # one job per worker, each redrawing one figure for its share of the controllers (a redraw costs
+    # about half a first draw), then the binarized overview
+    names = list(pairs)
+    shares = [names[k::max(1, workers)] for k in range(min(max(1, workers), len(names)))]
+    figure_jobs = [(plot_scan_figures, ({name: pairs[name] for name in share}, folder),
+                    {"kind": kind, "title": f"{scenario.name}: controller '{{controller}}' (experiment 1)",
+                     "scale": scale}) for share in shares]
     if pairs:
         figure_jobs.append((plot_binarized, (pairs, folder / "binarized.png"),
                             {"title": f"{scenario.name}: binarized images used for NSL2 (experiment 1)"}))
@@ -99,7 +101,7 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
         with worker_pool(max(1, workers)) as executor:
             figures = ordered_map(executor, _call, figure_jobs, ticker("figures", len(figure_jobs)), wait=False)
             written += _write_arrays(result, folder, scenario_yaml)
-            figure_paths = figures()
+            figure_paths = [path for done in figures() for path in (done if isinstance(done, list) else [done])]
     finally:  # the render process is waited for even when a figure fails: nothing writes after we return
         render_paths, warning = renders_done()
     if warning:
