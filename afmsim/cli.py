@@ -392,27 +392,56 @@ def validate_diagnosis_command(
     kind: Literal["loops", "images"] = typer.Option("loops", help="What is diagnosed: loops (stage records) or "
                                                                   "images (trace/retrace scans)."),
     out: Optional[Path] = typer.Option(None, help="Run folder to create (default: outputs/validate-diagnosis-"
-                                                  "<kind>-<time>); the scores go into diagnosis.json, or "
-                                                  "image_diagnosis.json for images."),
+                                                  "<kind>-<time>); the scores go into diagnosis.json, "
+                                                  "image_diagnosis.json for images, open_world.json for the "
+                                                  "open-world suite."),
+    suite: Literal["closed", "open-world"] = typer.Option(
+        "closed", help="closed: afmsim's plant, the effects at 10-100x the datasheet (--cases, --seed); open-world: "
+                       "four hysteresis families, datasheet and large effects in other forms, nulls and "
+                       "non-candidate distractors, 34 cases per seed (--seeds; loops only)."),
+    seeds: Optional[str] = typer.Option(None, help="Open-world seeds, comma-separated (default: --seed); "
+                                                   "1-6 were the development seeds."),
+    workers: Optional[int] = typer.Option(None, min=1, max=1024, help="Open-world worker processes "
+                                                                      "(default: every core)."),
 ):
     """Prove the diagnosis on simulated data whose effect was withheld from the model.
 
-    Python: afmsim.diagnosis.validate_diagnosis(n_cases, seed) or validate_image_diagnosis(n_cases, seed).
-    The published figures (benchmarks/results/) come from benchmarks/bench_*diagnosis.py.
+    Python: afmsim.diagnosis.validate_diagnosis(n_cases, seed) or validate_image_diagnosis(n_cases, seed);
+    afmsim.diagnosis.loops.open_world.validate_open_world(seeds, workers=...) for --suite open-world.
+    The published figures (benchmarks/results/) come from benchmarks/bench_*diagnosis.py and
+    benchmarks/bench_open_world.py.
     """
     from afmsim.diagnosis import validate_diagnosis, validate_image_diagnosis
     from afmsim.runio import default_run_dir, run_folder, write_json
+    from afmsim.workers import WorkerDied
 
-    out = out or default_run_dir("validate-diagnosis", kind)
+    open_world = suite == "open-world"
+    if open_world and kind != "loops":
+        _fail("--suite open-world is for --kind loops only")
+    try:
+        seed_list = [int(s) for s in seeds.split(",")] if seeds is not None else [seed]
+    except ValueError:
+        seed_list = []
+    if not seed_list or any(s < 0 for s in seed_list):
+        _fail(f"--seeds must be comma-separated integers >= 0, got {seeds!r}")
+    out = out or default_run_dir("validate-diagnosis", "open-world" if open_world else kind)
     if out.exists():
         _fail(f"output folder {out} already exists: choose another --out or remove it")
     run = validate_diagnosis if kind == "loops" else validate_image_diagnosis
-    config = {"cases": cases, "seed": seed, "kind": kind}
+    config = {"suite": suite, "seeds": seed_list, "kind": kind} if open_world else \
+        {"cases": cases, "seed": seed, "kind": kind}
     try:
-        with run_folder(out, config=config, seed=seed, command="validate-diagnosis") as folder:
-            scores = run(n_cases=cases, seed=seed)
-            write_json(folder / ("diagnosis.json" if kind == "loops" else "image_diagnosis.json"), scores)
-    except (ValueError, OSError) as error:
+        with run_folder(out, config=config, seed=seed_list[0], command="validate-diagnosis") as folder:
+            if open_world:
+                from afmsim.diagnosis.loops.open_world import headline, validate_open_world
+
+                result = validate_open_world(seed_list, workers=workers)
+                write_json(folder / "open_world.json", result)
+                scores = headline(result)
+            else:
+                scores = run(n_cases=cases, seed=seed)
+                write_json(folder / ("diagnosis.json" if kind == "loops" else "image_diagnosis.json"), scores)
+    except (ValueError, OSError, WorkerDied) as error:
         _fail(str(error).splitlines()[0])
     summary = {k: v for k, v in scores.items() if not isinstance(v, (list, dict))}
     for key, value in summary.items():

@@ -191,3 +191,40 @@ def test_a_large_slip_is_never_explained():
     rep, _, _ = diagnose_record(load_record({"t_s": t, "v_V": v, "x_m": x}))
     assert rep["status"] in ("partly_explained", "unexplained"), (rep["status"], rep["verdict"])
     assert rep["unexplained"]["gap_to_noise"] > 2.0
+
+
+def test_cli_open_world_suite_writes_open_world_json_and_refuses_bad_seeds(tmp_path, monkeypatch):
+    # where the figures go, not the suite itself (a benchmark): the validation is replaced by a double
+    import json
+
+    from typer.testing import CliRunner
+
+    import afmsim.diagnosis.loops.open_world as open_world
+    from afmsim.cli import app
+
+    calls = []
+    fake_cases = [_result("null", [], "nothing_missing", gap=1.0)]
+
+    def double(seeds, workers=None):
+        calls.append((list(seeds), workers))
+        return {"seeds": list(seeds), "fresh": True, "wall_s": 0.0, "scores": score_cases(fake_cases),
+                "cases": fake_cases}
+
+    monkeypatch.setattr(open_world, "validate_open_world", double)
+    runner = CliRunner()
+    out = tmp_path / "ow"
+    result = runner.invoke(app, ["validate-diagnosis", "--suite", "open-world", "--seeds", "7001,7002",
+                                 "--workers", "1", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert calls == [([7001, 7002], 1)]
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "open_world.json"]
+    assert json.loads((out / "open_world.json").read_text())["seeds"] == [7001, 7002]
+    assert json.loads((out / "manifest.json").read_text())["config"] == {"suite": "open-world", "seeds": [7001, 7002],
+                                                                         "kind": "loops"}
+    assert "null_false_attribution: 0% (0/1" in result.output
+    for args in (["--seeds", "7001,x"], ["--seeds", "-3"], ["--kind", "images"]):
+        result = runner.invoke(app, ["validate-diagnosis", "--suite", "open-world", *args,
+                                     "--out", str(tmp_path / "bad")])
+        assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1, result.output
+        assert not (tmp_path / "bad").exists()
+    assert len(calls) == 1

@@ -21,7 +21,10 @@ datasheet), every case here is a record from
 * one of three **timings**: ``standard`` (500 Hz–2 kHz, 8–16 s), ``long`` (200 Hz–1 kHz, 30–60 s,
   decimated by the loader to ≤ 8000 samples) and ``fast`` (8000 samples at 3–20 kHz: the voltage
   path of a 1 kHz, 8 s excitation played 3–20× faster, so a 300 Hz–3 kHz resonance is sampled
-  ≥ 6.7× and excited by the drive's corners).
+  ≥ 6.7× and excited by the drive's corners). The drives are the excitations of :mod:`.validation`
+  (triangle trains, steps with holds, sine trains, band-limited noise), redrawn until the held-out
+  last 40 % stays inside the training part's voltage range (the protocol's condition: no
+  rate-independent model can know relays that only the held-out part switches).
 
 Injected forms (the candidates in :mod:`.model` are: drift quadratic in t; creep a bank of
 first-order relaxations; dynamics a first-order lag after the hysteresis; coupling ``c·y_m``):
@@ -71,7 +74,7 @@ from .null_plants import NULL_FAMILIES, null_plant
 from .record import load_record
 from .validation import EXCITATIONS, excitation
 
-__all__ = ["validate_open_world", "case_plan", "make_case", "run_case", "score_cases", "proportion", "CaseSpec",
+__all__ = ["validate_open_world", "headline", "case_plan", "make_case", "run_case", "score_cases", "proportion", "CaseSpec",
            "PLANTS", "EFFECT_LEVELS", "DISTRACTOR_LEVELS", "DEVELOPMENT_SEEDS", "FRESH_SEEDS", "TARGETS"]
 
 NM_PER_MIN = 1e-9 / 60.0
@@ -149,17 +152,33 @@ def _timing(spec: CaseSpec, rng: np.random.Generator) -> str:
     return TIMINGS[int(rng.integers(len(TIMINGS)))]
 
 
-def _drive(timing: str, rng: np.random.Generator, f0: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Time (s) and drive voltage (0–10 V) of one record."""
-    kind = EXCITATIONS[int(rng.integers(len(EXCITATIONS)))]
+def _repeats_its_range(v: np.ndarray, train_fraction: float = 0.6, tolerance: float = 0.01) -> bool:
+    """Whether the held-out part of a drive stays inside the training part's voltage range (the
+    diagnosis protocol: relays only the held-out part switches cannot be known)."""
+    k = int(round(train_fraction * v.size))
+    lo, hi = float(v[:k].min()), float(v[:k].max())
+    pad = tolerance * (hi - lo)
+    return bool(v[k:].min() >= lo - pad and v[k:].max() <= hi + pad)
+
+
+def _drive(timing: str, rng: np.random.Generator, f0: float | None = None) -> tuple[np.ndarray, np.ndarray, str]:
+    """Time (s), drive voltage (0–10 V) and excitation kind of one record, redrawn (up to 100 times)
+    until its held-out part repeats the training part's voltage range."""
     if timing == "fast":
         f0 = f0 if f0 is not None else float(rng.choice([300.0, 1000.0, 3000.0]))
-        fs = float(np.clip(10.0 * f0, 3000.0, 20000.0))
-        _, v = excitation(kind, 1000.0, 8.0, rng)  # the path of a 1 kHz, 8 s record, played fs/1 kHz faster
-        return np.arange(v.size) / fs, v
-    if timing == "long":
-        return excitation(kind, float(rng.choice([200.0, 500.0, 1000.0])), float(rng.uniform(30.0, 60.0)), rng)
-    return excitation(kind, float(rng.choice([500.0, 1000.0, 2000.0])), float(rng.uniform(8.0, 16.0)), rng)
+    for _ in range(100):
+        kind = EXCITATIONS[int(rng.integers(len(EXCITATIONS)))]
+        if timing == "fast":
+            fs = float(np.clip(10.0 * f0, 3000.0, 20000.0))
+            _, v = excitation(kind, 1000.0, 8.0, rng)  # the path of a 1 kHz, 8 s record, played fs/1 kHz faster
+            t = np.arange(v.size) / fs
+        elif timing == "long":
+            t, v = excitation(kind, float(rng.choice([200.0, 500.0, 1000.0])), float(rng.uniform(30.0, 60.0)), rng)
+        else:
+            t, v = excitation(kind, float(rng.choice([500.0, 1000.0, 2000.0])), float(rng.uniform(8.0, 16.0)), rng)
+        if _repeats_its_range(v):
+            return t, v, kind
+    raise RuntimeError("no drive in 100 draws repeats its voltage range in the held-out part")
 
 
 def _cross_drive(t, timing: str, rng: np.random.Generator) -> np.ndarray:
@@ -243,7 +262,7 @@ def make_case(spec: CaseSpec, rng: np.random.Generator) -> dict:
     names = dict(spec.effects)
     f0 = EFFECT_LEVELS["dynamics"][names["dynamics"]].value if "dynamics" in names else None
     timing = _timing(spec, rng)
-    t, v = _drive(timing, rng, f0)
+    t, v, kind = _drive(timing, rng, f0)
     fs = 1.0 / float(t[1] - t[0])
     plant_seed = int(rng.integers(2**63))
     h_ref = plant_displacement(plant, v, plant_seed)
@@ -307,7 +326,8 @@ def make_case(spec: CaseSpec, rng: np.random.Generator) -> dict:
     cols = {"t_s": t, "v_V": v_rec, "x_m": x_m}
     if has_y:
         cols["y_m"] = y_true + sigma * rng.standard_normal(t.size)
-    return {"columns": cols, "reference_x_m": x_ref, "plant": plant, "timing": timing, "fs": fs, "sigma": sigma,
+    return {"columns": cols, "reference_x_m": x_ref, "plant": plant, "timing": timing, "excitation": kind, "fs": fs,
+            "sigma": sigma,
             "injected": injected}
 
 
@@ -327,7 +347,7 @@ def run_case(seed: int, index: int) -> dict:
     spec = case_plan()[index]
     case = make_case(spec, np.random.default_rng([seed, index]))
     out = {"seed": seed, "index": index, **_labels(spec), "plant": case["plant"], "timing": case["timing"],
-           "fs": case["fs"], "injected": case["injected"]}
+           "excitation": case["excitation"], "fs": case["fs"], "injected": case["injected"]}
     t0 = time.perf_counter()
     try:
         rec = load_record(case["columns"])
@@ -419,6 +439,9 @@ def score_cases(results: list[dict]) -> dict:
         "distractor_explained": proportion(r["status"] == "explained" for r in dis),
         "null_gap_to_noise": null_gaps,
         "nulls_within_2x": proportion(r["gap_to_noise"] <= HONEST_FACTOR for r in nulls),
+        "null_gap_to_noise_by_excitation": {
+            kind: {"n": len(g), "median": round(float(np.median(g)), 3), "max": round(float(np.max(g)), 3)}
+            for kind in EXCITATIONS if (g := [r["gap_to_noise"] for r in nulls if r.get("excitation") == kind])},
         "status_counts": {cat: {s: sum(r["status"] == s for r in ok if r["category"] == cat) for s in STATUSES}
                           for cat in ("effect", "null", "distractor")},
         "detection_vs_magnitude": detection,
@@ -451,3 +474,27 @@ def validate_open_world(seeds=FRESH_SEEDS, *, workers: int | None = None, on_don
             "wall_s": round(time.perf_counter() - t0, 1), "scores": score_cases(results),
             "by_seed": {str(s): score_cases([r for r in results if r["seed"] == s]) for s in seeds},
             "cases": results}
+
+
+def _text(p: dict) -> str:
+    if p["rate"] is None:
+        return "n/a (no cases)"
+    lo, hi = p["ci95"]
+    return f"{p['rate']:.0%} ({p['k']}/{p['n']}, 95 % CI {lo:.0%}–{hi:.0%})"
+
+
+def headline(result: dict) -> dict:
+    """The headline figures of :func:`validate_open_world`'s result, one line each (for the CLI)."""
+    s = result["scores"]
+    gaps = s["null_gap_to_noise"]
+    return {"suite": "open-world", "seeds": ",".join(map(str, result["seeds"])),
+            "seeds_fresh": result["fresh"], "cases": s["cases"], "errors": s["errors"],
+            "effect_top1": _text(s["effect_top1"]), "effect_exact_set": _text(s["effect_exact_set"]),
+            "effect_top1_visible": _text(s["effect_top1_visible"]),
+            "null_false_attribution": _text(s["null_false_attribution"]),
+            "distractor_false_attribution": _text(s["distractor_false_attribution"]),
+            "distractor_explained": _text(s["distractor_explained"]),
+            "nulls_within_2x_noise": _text(s["nulls_within_2x"]),
+            "null_gap_to_noise_max": ", ".join(f"{p} {g['max']:.1f}x" for p, g in gaps.items()),
+            "targets_met": ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in s["targets_met"].items()),
+            "wall_s": result["wall_s"]}

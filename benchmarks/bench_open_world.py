@@ -1,0 +1,103 @@
+"""Open-world validation of the loop diagnosis on fresh seeds (issue 11, point 5).
+
+    PYTHONPATH=. nice -n 10 python benchmarks/bench_open_world.py [--seeds 7001,7002,7003] [--workers 2]
+
+Runs :func:`afmsim.diagnosis.loops.open_world.validate_open_world` (34 cases per seed, spread over
+the worker processes) and writes ``benchmarks/results/open_world.json``: the machine, the headline,
+the pooled and per-seed scores and every case; prints the headline and the Markdown tables of
+docs/diagnosis.md ("Open-world validation"). Seeds 1–6 were the development seeds; the published
+figures come from 7001–7003, run once after the method was frozen.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from afmsim.diagnosis.loops.open_world import FRESH_SEEDS, PLANTS, headline, validate_open_world
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import machine_info  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _jsonable(o):
+    if isinstance(o, dict):
+        return {k: _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, (np.floating, np.integer, np.bool_)):
+        return o.item()
+    return o
+
+
+def _p(p: dict) -> str:
+    if p["rate"] is None:
+        return "–"
+    lo, hi = p["ci95"]
+    return f"{p['rate']:.0%} ({p['k']}/{p['n']}; {lo:.0%}–{hi:.0%})"
+
+
+def tables(scores: dict) -> str:
+    """The Markdown tables of the docs section, from the pooled scores."""
+    lines = ["| score | value (k/n; 95 % Wilson interval) | target |", "|---|---|---|"]
+    rows = [("effect cases: top-1", "effect_top1", "≥ 90 %"), ("effect cases: exact set", "effect_exact_set", ""),
+            ("visible effect cases: top-1", "effect_top1_visible", ""),
+            ("datasheet-magnitude effect cases: top-1", "effect_top1_datasheet", ""),
+            ("null cases: false attribution", "null_false_attribution", "≤ 10 %"),
+            ("null cases: status explained", "null_explained", ""),
+            ("distractor cases: false attribution", "distractor_false_attribution", "≤ 10 %"),
+            ("distractor cases: status explained", "distractor_explained", "0"),
+            ("null cases within 2× noise", "nulls_within_2x", "all")]
+    lines += [f"| {name} | {_p(scores[key])} | {target} |" for name, key, target in rows]
+    lines += ["", "| case type | nothing_missing | explained | partly_explained | unexplained |", "|---|---|---|---|---|"]
+    for cat, counts in scores["status_counts"].items():
+        lines.append(f"| {cat} | " + " | ".join(str(v) for v in counts.values()) + " |")
+    lines += ["", "| null plant | cases | baseline gap/noise (median, max) | within 2× |", "|---|---|---|---|"]
+    for plant in PLANTS:
+        g = scores["null_gap_to_noise"].get(plant)
+        if g:
+            lines.append(f"| {plant} | {g['n']} | {g['median']:.1f}×, {g['max']:.1f}× | {g['within_2x']['k']}/{g['n']} |")
+    lines += ["", "| effect | magnitude | scale | detected (named) | top-1 | visible to the oracle |",
+              "|---|---|---|---|---|---|"]
+    for effect, rows_ in scores["detection_vs_magnitude"].items():
+        for label, r in rows_.items():
+            lines.append(f"| {effect} | {label} | {r['scale']} | {_p(r['detected'])} | {_p(r['top1'])} | "
+                         f"{r['visible']}/{r['detected']['n']} |")
+    lines += ["", "| distractor | false attribution | status counts (nm/ex/partly/unex) | verdicts |",
+              "|---|---|---|---|"]
+    for name, d in scores["distractors"].items():
+        verdicts = "; ".join(",".join(v) or "–" for v in d["verdicts"])
+        lines.append(f"| {name} | {_p(d['false_attribution'])} | "
+                     f"{'/'.join(str(v) for v in d['status_counts'].values())} | {verdicts} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", default=",".join(map(str, FRESH_SEEDS)))
+    ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "open_world.json")
+    args = ap.parse_args()
+    seeds = [int(s) for s in args.seeds.split(",")]
+    done = lambda index, n_done, total: print(f"\r{n_done}/{total} cases", end="", flush=True)  # noqa: E731
+    result = validate_open_world(seeds, workers=args.workers, on_done=done)
+    print()
+    head = headline(result)
+    out = {"machine": machine_info(), "headline": head, **result}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_suffix(".json.partial")
+    tmp.write_text(json.dumps(_jsonable(out), indent=1))
+    tmp.replace(args.out)
+    print(json.dumps(head, indent=1, ensure_ascii=False))
+    print(tables(result["scores"]))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
