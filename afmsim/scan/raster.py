@@ -75,15 +75,17 @@ def surface_under_tip(surface: HeightMap, x_m: np.ndarray, y_m: np.ndarray) -> n
 
 
 def scan_frame(surface: HeightMap, trajectory: RasterTrajectory, stage, controller_x, controller_y,
-               z_stage: ZStage, z_feedback: ZFeedback, rng: np.random.Generator) -> ScanImages:
+               z_stage: ZStage, z_feedback: ZFeedback, rng: np.random.Generator, *,
+               positions: tuple[np.ndarray, np.ndarray] | None = None) -> ScanImages:
     """Scan the tip-dilated ``surface`` along ``trajectory`` through ``stage`` with feedforward.
 
     ``controller_x/y.predict(displacement) -> voltage`` turn the intended displacement of each axis
-    into drive voltages; ``stage.move(t, vx, vy) -> (x, y)`` gives the actual positions.
+    into drive voltages; ``stage.move(t, vx, vy) -> (x, y)`` gives the actual positions (m), or
+    ``positions`` where the caller has moved the stage with these drives already.
     """
     vx = controller_x.predict(trajectory.x)
     vy = controller_y.predict(trajectory.y)
-    x_actual, y_actual = stage.move(trajectory.t, vx, vy)
+    x_actual, y_actual = positions if positions is not None else stage.move(trajectory.t, vx, vy)
     z_limit = np.empty(trajectory.t.size, dtype=bool)
     heights = track_surface(surface_under_tip(surface, x_actual, y_actual), trajectory.geometry.sample_rate_hz,
                             z_stage, z_feedback, rng, at_limit=z_limit)

@@ -54,7 +54,8 @@ def simulate_scan(stage: XYStage, z_feedback: ZFeedback, trace: np.ndarray, scan
     dx = scan.size_m[0] / scan.pixels
     surface = sample_from_trace(trace, x_trace[:, columns], y_trace[:, columns].mean(axis=1), dx / 2,
                                 margin_m=0.05 * geometry.size[0] + 5 * dx)
-    images = scan_frame(surface, trajectory, stage, *controllers, ZStage(hysteresis=False), z_feedback, rng)
+    images = scan_frame(surface, trajectory, stage, *controllers, ZStage(hysteresis=False), z_feedback, rng,
+                        positions=(x, y))
     return images.trace.z[:, columns], images.retrace.z[:, columns]
 
 
