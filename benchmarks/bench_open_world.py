@@ -16,31 +16,13 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from afmsim.diagnosis.loops.open_world import FRESH_SEEDS, PLANTS, headline, validate_open_world
+from afmsim.diagnosis.loops.open_world import FRESH_SEEDS, PLANTS, headline, proportion_text, validate_open_world
+from afmsim.runio import write_json
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _timing import machine_info  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _jsonable(o):
-    if isinstance(o, dict):
-        return {k: _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, (np.floating, np.integer, np.bool_)):
-        return o.item()
-    return o
-
-
-def _p(p: dict) -> str:
-    if p["rate"] is None:
-        return "–"
-    lo, hi = p["ci95"]
-    return f"{p['rate']:.0%} ({p['k']}/{p['n']}; {lo:.0%}–{hi:.0%})"
 
 
 def tables(scores: dict) -> str:
@@ -54,7 +36,7 @@ def tables(scores: dict) -> str:
             ("distractor cases: false attribution", "distractor_false_attribution", "≤ 10 %"),
             ("distractor cases: status explained", "distractor_explained", "0"),
             ("null cases within 2× noise", "nulls_within_2x", "all")]
-    lines += [f"| {name} | {_p(scores[key])} | {target} |" for name, key, target in rows]
+    lines += [f"| {name} | {proportion_text(scores[key])} | {target} |" for name, key, target in rows]
     lines += ["", "| case type | nothing_missing | explained | partly_explained | unexplained |", "|---|---|---|---|---|"]
     for cat, counts in scores["status_counts"].items():
         lines.append(f"| {cat} | " + " | ".join(str(v) for v in counts.values()) + " |")
@@ -67,13 +49,13 @@ def tables(scores: dict) -> str:
               "|---|---|---|---|---|---|"]
     for effect, rows_ in scores["detection_vs_magnitude"].items():
         for label, r in rows_.items():
-            lines.append(f"| {effect} | {label} | {r['scale']} | {_p(r['detected'])} | {_p(r['top1'])} | "
-                         f"{r['visible']}/{r['detected']['n']} |")
+            lines.append(f"| {effect} | {label} | {r['scale']} | {proportion_text(r['detected'])} | "
+                         f"{proportion_text(r['top1'])} | {r['visible']}/{r['detected']['n']} |")
     lines += ["", "| distractor | false attribution | status counts (nm/ex/partly/unex) | verdicts |",
               "|---|---|---|---|"]
     for name, d in scores["distractors"].items():
         verdicts = "; ".join(",".join(v) or "–" for v in d["verdicts"])
-        lines.append(f"| {name} | {_p(d['false_attribution'])} | "
+        lines.append(f"| {name} | {proportion_text(d['false_attribution'])} | "
                      f"{'/'.join(str(v) for v in d['status_counts'].values())} | {verdicts} |")
     return "\n".join(lines)
 
@@ -91,9 +73,7 @@ def main() -> None:
     head = headline(result)
     out = {"machine": machine_info(), "headline": head, **result}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".json.partial")
-    tmp.write_text(json.dumps(_jsonable(out), indent=1))
-    tmp.replace(args.out)
+    write_json(args.out, out)
     print(json.dumps(head, indent=1, ensure_ascii=False))
     print(tables(result["scores"]))
     print(f"wrote {args.out}")

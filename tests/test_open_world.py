@@ -10,7 +10,7 @@ import pytest
 
 from afmsim.diagnosis.loops.distractors import gain_change, mains_pickup, rate_dependent_width, slip
 from afmsim.diagnosis.loops.open_world import (DISTRACTOR_LEVELS, EFFECT_LEVELS, PLANTS, CaseSpec, case_plan,
-                                               creep_term, drift_term, make_case, plant_displacement, proportion,
+                                               amplifier, creep_term, drift_term, make_case, plant_displacement, proportion,
                                                resonance, score_cases)
 from afmsim.diagnosis.loops.attribute import diagnose_record
 from afmsim.diagnosis.loops.record import load_record
@@ -79,6 +79,11 @@ def test_injected_forms_have_the_stated_magnitudes():
         # not the candidate's quadratic in t: a quadratic fit leaves a residual
         if form == "warmup":
             assert np.std(d - np.polyval(np.polyfit(t, d, 2), t)) > 1e-3 * np.ptp(d)
+    # the amplifier pole delays a ramp by 1/(2π·pole), a pole beyond Nyquist too
+    t20 = np.arange(4000) / 20000.0
+    for pole in (60.0, 30000.0):
+        lagged = amplifier(100.0 * t20, 20000.0, pole)
+        assert (100.0 * t20[-1] - lagged[-1]) / 100.0 == pytest.approx(1 / (2 * np.pi * pole), rel=1e-6)
     # the resonance's gain peaks at f0·√(1 − 2ζ²) with height ≈ 1/(2ζ)
     fs = 20000.0
     n = 2**15
@@ -221,7 +226,7 @@ def test_cli_open_world_suite_writes_open_world_json_and_refuses_bad_seeds(tmp_p
     assert json.loads((out / "open_world.json").read_text())["seeds"] == [7001, 7002]
     assert json.loads((out / "manifest.json").read_text())["config"] == {"suite": "open-world", "seeds": [7001, 7002],
                                                                          "kind": "loops"}
-    assert "null_false_attribution: 0% (0/1" in result.output
+    assert "null_false_attribution: 0% (0/1;" in result.output
     for args in (["--seeds", "7001,x"], ["--seeds", "-3"], ["--kind", "images"]):
         result = runner.invoke(app, ["validate-diagnosis", "--suite", "open-world", *args,
                                      "--out", str(tmp_path / "bad")])

@@ -35,9 +35,9 @@ first-order relaxations; dynamics a first-order lag after the hysteresis; coupli
   datasheet's ``d(t) = d(0.1 s)·[1 + γ·log10(t/0.1 s)]``);
 * drift — exponential warm-up ``1 − exp(−t/τw)`` (τw 0.3–2 × the record) or a smooth random walk
   (integrated low-passed noise); the magnitude is the least-squares rate over the record (m/s);
-* dynamics — a high-voltage amplifier pole acting on the *voltage* before the hysteresis, and a
-  lightly damped resonance (ζ 0.01–0.05) acting on the displacement after it, both discretised by
-  the bilinear transform; the magnitude is the resonance frequency f0 (datasheet cases: amplifier
+* dynamics — a high-voltage amplifier pole acting on the *voltage* before the hysteresis
+  (first-order-hold discretisation), and a lightly damped resonance (ζ 0.01–0.05) acting on the
+  displacement after it (bilinear transform pre-warped at f0); the magnitude is the resonance frequency f0 (datasheet cases: amplifier
   pole at 3–10 × f0; large case: f0 300 Hz with a 60 Hz amplifier pole);
 * cross-coupling — ``c·(y + q·(y − ȳ)²/range(y))`` with the cross axis' *true* motion y from its
   own hysteretic plant (same family, other parameters) and a flexure's quadratic arc
@@ -61,7 +61,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import bilinear, butter, fftconvolve, lfilter, lfilter_zi, sosfiltfilt
+from scipy.signal import bilinear, butter, cont2discrete, fftconvolve, lfilter, lfilter_zi, sosfiltfilt
 from scipy.stats import binomtest
 
 from afmsim.stage import AsymmetricPreisach
@@ -74,7 +74,7 @@ from .null_plants import NULL_FAMILIES, null_plant
 from .record import load_record
 from .validation import EXCITATIONS, excitation
 
-__all__ = ["validate_open_world", "headline", "case_plan", "make_case", "run_case", "score_cases", "proportion", "CaseSpec",
+__all__ = ["validate_open_world", "headline", "proportion_text", "case_plan", "make_case", "run_case", "score_cases", "proportion", "CaseSpec",
            "PLANTS", "EFFECT_LEVELS", "DISTRACTOR_LEVELS", "DEVELOPMENT_SEEDS", "FRESH_SEEDS", "TARGETS"]
 
 NM_PER_MIN = 1e-9 / 60.0
@@ -242,10 +242,13 @@ def _prewarped(f_hz: float, fs: float) -> float:
 
 
 def amplifier(v, fs: float, pole_hz: float) -> np.ndarray:
-    """Voltage (V) after a first-order high-voltage amplifier pole (bilinear transform, pre-warped
-    at the pole)."""
-    w = _prewarped(pole_hz, fs)
-    return _bilinear_filter([w], [1.0, w], fs, v)
+    """Voltage (V) after a first-order high-voltage amplifier pole ω/(s + ω), discretised exactly
+    for a piecewise-linear input (first-order hold; stable for a pole beyond Nyquist too),
+    starting in steady state at the first sample."""
+    w = 2 * np.pi * pole_hz
+    b, a, _ = cont2discrete(([w], [1.0, w]), 1.0 / fs, method="foh")
+    b = np.ravel(b)
+    return lfilter(b, a, v, zi=lfilter_zi(b, a) * v[0])[0]
 
 
 def resonance(x, fs: float, f0: float, zeta: float) -> np.ndarray:
@@ -476,11 +479,12 @@ def validate_open_world(seeds=FRESH_SEEDS, *, workers: int | None = None, on_don
             "cases": results}
 
 
-def _text(p: dict) -> str:
+def proportion_text(p: dict) -> str:
+    """A :func:`proportion` as ``"75% (3/4; 30%–95%)"`` (rate, k/n, Wilson 95 % interval)."""
     if p["rate"] is None:
         return "n/a (no cases)"
     lo, hi = p["ci95"]
-    return f"{p['rate']:.0%} ({p['k']}/{p['n']}, 95 % CI {lo:.0%}–{hi:.0%})"
+    return f"{p['rate']:.0%} ({p['k']}/{p['n']}; {lo:.0%}–{hi:.0%})"
 
 
 def headline(result: dict) -> dict:
@@ -489,12 +493,12 @@ def headline(result: dict) -> dict:
     gaps = s["null_gap_to_noise"]
     return {"suite": "open-world", "seeds": ",".join(map(str, result["seeds"])),
             "seeds_fresh": result["fresh"], "cases": s["cases"], "errors": s["errors"],
-            "effect_top1": _text(s["effect_top1"]), "effect_exact_set": _text(s["effect_exact_set"]),
-            "effect_top1_visible": _text(s["effect_top1_visible"]),
-            "null_false_attribution": _text(s["null_false_attribution"]),
-            "distractor_false_attribution": _text(s["distractor_false_attribution"]),
-            "distractor_explained": _text(s["distractor_explained"]),
-            "nulls_within_2x_noise": _text(s["nulls_within_2x"]),
+            "effect_top1": proportion_text(s["effect_top1"]), "effect_exact_set": proportion_text(s["effect_exact_set"]),
+            "effect_top1_visible": proportion_text(s["effect_top1_visible"]),
+            "null_false_attribution": proportion_text(s["null_false_attribution"]),
+            "distractor_false_attribution": proportion_text(s["distractor_false_attribution"]),
+            "distractor_explained": proportion_text(s["distractor_explained"]),
+            "nulls_within_2x_noise": proportion_text(s["nulls_within_2x"]),
             "null_gap_to_noise_max": ", ".join(f"{p} {g['max']:.1f}x" for p, g in gaps.items()),
             "targets_met": ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in s["targets_met"].items()),
             "wall_s": result["wall_s"]}
