@@ -347,3 +347,17 @@ def test_a_scan_figure_redrawn_for_another_controller_shows_only_that_controller
                         tmp_path / "x.png", title="x")
     assert not plt.fignum_exists(figure.fig.number)
     assert (tmp_path / "figure_b.png").stat().st_size > 10_000
+
+
+def test_progress_counts_figure_files_as_they_are_written(tmp_path):
+    """Figures are drawn as one job per worker (each redrawing its share of the controllers) plus the
+    binarized overview; the progress display still counts files, up to every figure the run writes."""
+    scenario = parse_scenario({"name": "tiny", "sample": {"kind": "grating"},
+                               "scan": {"size_um": [12, 12], "offset_um": [2, 2], "pixels": 24, "lines": 8},
+                               "experiments": 1, "controllers": ["none", "spi", "ideal"]})
+    seen = []
+    write_run(run_scenario(scenario), tmp_path, renders="none", workers=2, progress=lambda *a: seen.append(a))
+    figures = [(done, total) for stage, done, total in seen if stage == "figures"]
+    pngs = sorted(p.name for p in tmp_path.glob("*.png"))
+    assert pngs == ["binarized.png", "figure_ideal.png", "figure_none.png", "figure_spi.png"]
+    assert figures[-1] == (4, 4) and [d for d, _ in figures] == sorted(d for d, _ in figures)

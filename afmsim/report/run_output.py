@@ -84,7 +84,6 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
     if pairs:
         figure_jobs.append((plot_binarized, (pairs, folder / "binarized.png"),
                             {"title": f"{scenario.name}: binarized images used for NSL2 (experiment 1)"}))
-    ticker = _Ticker(progress)
     written, warnings = [folder / "metrics.json", folder / "scenario.yaml"], []
     render_files = [] if renders == "none" else [folder / n for n in render_names(list(pairs), renders, best)]
     if progress is not None and render_files:
@@ -99,7 +98,8 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
         renders_done = start_renders(draw, [])
     try:
         with worker_pool(max(1, workers)) as executor:
-            figures = ordered_map(executor, _call, figure_jobs, ticker("figures", len(figure_jobs)), wait=False)
+            figures = ordered_map(executor, _call, figure_jobs,
+                                  _files_ticker(progress, "figures", [len(share) for share in shares] + [1]), wait=False)
             written += _write_arrays(result, folder, scenario_yaml)
             figure_paths = [path for done in figures() for path in (done if isinstance(done, list) else [done])]
     finally:  # the render process is waited for even when a figure fails: nothing writes after we return
@@ -133,17 +133,17 @@ def _draw_renders(pairs, truth, mesh, folder, name, which, best) -> list[Path]:
     return [func(*args) for func, args in render_jobs(pairs, truth, mesh, folder, name=name, which=which, best=best)]
 
 
-class _Ticker:
-    """``ticker(stage, total)`` gives the ``on_done`` of :func:`ordered_map` that reports ``stage`` to
-    ``progress(stage, done, total)`` (nothing when ``progress`` is None)."""
+def _files_ticker(progress, stage: str, sizes: list[int]):
+    """The ``on_done`` of :func:`ordered_map` for jobs that write ``sizes[i]`` files each: reports
+    ``progress(stage, files written, files in all)`` (None when ``progress`` is None)."""
+    if progress is None:
+        return None
+    written = []
 
-    def __init__(self, progress):
-        self.progress = progress
-
-    def __call__(self, stage: str, total: int):
-        if self.progress is None:
-            return None
-        return lambda _index, done, _total: self.progress(stage, done, total)
+    def on_done(index, _done, _total):
+        written.append(sizes[index])
+        progress(stage, sum(written), sum(sizes))
+    return on_done
 
 
 def _write_arrays(result: ScenarioResult, folder: Path, scenario_yaml: str) -> list[Path]:
