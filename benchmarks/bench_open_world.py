@@ -32,8 +32,10 @@ def tables(scores: dict) -> str:
             ("visible effect cases: top-1", "effect_top1_visible", ""),
             ("datasheet-magnitude effect cases: top-1", "effect_top1_datasheet", ""),
             ("null cases: false attribution", "null_false_attribution", "≤ 10 %"),
+            ("null cases: plausible effect named (findings)", "null_false_findings", ""),
             ("null cases: status explained", "null_explained", ""),
             ("distractor cases: false attribution", "distractor_false_attribution", "≤ 10 %"),
+            ("distractor cases: plausible effect named (findings)", "distractor_false_findings", ""),
             ("distractor cases: status explained", "distractor_explained", "0"),
             ("null cases within 2× noise", "nulls_within_2x", "all")]
     lines += [f"| {name} | {proportion_text(scores[key])} | {target} |" for name, key, target in rows]

@@ -175,6 +175,7 @@ def test_scores_of_a_hand_made_list():
     assert s["null_explained"]["k"] == 1
     assert (s["distractor_false_attribution"]["k"], s["distractor_false_attribution"]["n"]) == (1, 3)
     assert s["distractor_explained"]["k"] == 0
+    assert s["null_false_findings"]["k"] == 1 and s["distractor_false_findings"]["k"] == 1
     assert s["null_gap_to_noise"]["bouc_wen"]["max"] == 3.0
     assert s["null_gap_to_noise"]["bouc_wen"]["within_2x"]["k"] == 1
     assert (s["nulls_within_2x"]["k"], s["nulls_within_2x"]["n"]) == (1, 3)

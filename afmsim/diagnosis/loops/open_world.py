@@ -47,8 +47,9 @@ Scores (:func:`score_cases`), each proportion with its Wilson 95 % interval: eff
 (first verdict entry is a true effect) and exact-set accuracy over *all* effect cases and over the
 *visible* ones (the injected effect raises the baseline's held-out mean square by at least the
 noise variance σ², by an oracle: the same baseline fitted on the same record without the effect),
-the false-attribution rate (a named effect, i.e. a non-empty verdict) and the ``explained`` rate on
-null and on distractor cases, the null gap-to-noise per plant family, the status counts per case
+the false-attribution rate (a named effect, i.e. a non-empty verdict, implausible ones included),
+the false-findings rate (a plausible named effect) and the ``explained`` rate on null and on
+distractor cases, the null gap-to-noise per plant family, the status counts per case
 type and the detection-versus-magnitude table (detected = the effect is in the verdict).
 
 Seeds: **1–6 were the development seeds**; the figures in docs/diagnosis.md come from the fresh
@@ -438,8 +439,10 @@ def score_cases(results: list[dict]) -> dict:
         "effect_top1_datasheet": proportion(r["top1"] for r in eff if set(r["scales"].values()) == {"datasheet"}),
         "null_false_attribution": proportion(bool(r["verdict"]) for r in nulls),
         "null_explained": proportion(r["status"] == "explained" for r in nulls),
+        "null_false_findings": proportion(bool(r["findings"]) for r in nulls),
         "distractor_false_attribution": proportion(bool(r["verdict"]) for r in dis),
         "distractor_explained": proportion(r["status"] == "explained" for r in dis),
+        "distractor_false_findings": proportion(bool(r["findings"]) for r in dis),
         "null_gap_to_noise": null_gaps,
         "nulls_within_2x": proportion(r["gap_to_noise"] <= HONEST_FACTOR for r in nulls),
         "null_gap_to_noise_by_excitation": {
