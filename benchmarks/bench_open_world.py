@@ -3,7 +3,8 @@
     PYTHONPATH=. nice -n 10 python benchmarks/bench_open_world.py [--seeds 7001,7002,7003] [--workers 2]
 
 Runs :func:`afmsim.diagnosis.loops.open_world.validate_open_world` (34 cases per seed, spread over
-the worker processes) and writes ``benchmarks/results/open_world.json``: the machine, the headline,
+the worker processes) and writes ``benchmarks/results/open_world.json``: the machine, the git
+revision (the diagnosis that was scored), the headline,
 the pooled and per-seed scores and every case; prints the headline and the Markdown tables of
 docs/diagnosis.md ("Open-world validation"). Seeds 1–6 were the development seeds; the published
 figures come from 7001–7003, run once after the method was frozen.
@@ -17,7 +18,7 @@ import sys
 from pathlib import Path
 
 from afmsim.diagnosis.loops.open_world import FRESH_SEEDS, PLANTS, headline, proportion_text, validate_open_world
-from afmsim.runio import write_json
+from afmsim.runio import git_revision, write_json
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _timing import machine_info  # noqa: E402
@@ -73,7 +74,7 @@ def main() -> None:
     result = validate_open_world(seeds, workers=args.workers, on_done=done)
     print()
     head = headline(result)
-    out = {"machine": machine_info(), "headline": head, **result}
+    out = {"machine": machine_info(), "git": git_revision(), "headline": head, **result}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_json(args.out, out)
     print(json.dumps(head, indent=1, ensure_ascii=False))
