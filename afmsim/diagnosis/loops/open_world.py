@@ -278,15 +278,16 @@ def make_case(spec: CaseSpec, rng: np.random.Generator) -> dict:
         pole = LARGE_AMPLIFIER_POLE_HZ if level.scale == "large" else level.value * rng.uniform(3.0, 10.0)
         zeta = float(rng.uniform(0.01, 0.05))
         x = plant_displacement(plant, amplifier(v, fs, pole), plant_seed)
-        injected.append({"effect": "dynamics", "form": "amplifier pole + resonance", "f0_hz": level.value,
-                         "amplifier_pole_hz": float(pole), "zeta": zeta})
+        dynamics = {"effect": "dynamics", "form": "amplifier pole + resonance", "f0_hz": level.value,
+                    "amplifier_pole_hz": float(pole), "zeta": zeta}
+        injected.append(dynamics)
     if "creep" in names:
         level = EFFECT_LEVELS["creep"][names["creep"]]
         form = ("log", "stretched")[int(rng.integers(2))]
         x = x + creep_term(t, x, level.value, form, rng)
         injected.append({"effect": "creep", "form": form, "gamma_per_decade": level.value})
     if "dynamics" in names:
-        x = resonance(x, fs, injected[0]["f0_hz"], injected[0]["zeta"])
+        x = resonance(x, fs, dynamics["f0_hz"], dynamics["zeta"])
     has_y = "cross_coupling" in names or rng.random() < 0.5
     y_true = None
     if has_y:
@@ -331,8 +332,7 @@ def make_case(spec: CaseSpec, rng: np.random.Generator) -> dict:
     if has_y:
         cols["y_m"] = y_true + sigma * rng.standard_normal(t.size)
     return {"columns": cols, "reference_x_m": x_ref, "plant": plant, "timing": timing, "excitation": kind, "fs": fs,
-            "sigma": sigma,
-            "injected": injected}
+            "sigma": sigma, "injected": injected}
 
 
 def _labels(spec: CaseSpec) -> dict:
