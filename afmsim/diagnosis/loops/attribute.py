@@ -5,10 +5,13 @@ Protocol of :func:`diagnose_loops`:
 1. the record is validated/decimated (:func:`~afmsim.diagnosis.loops.record.load_record`); the first
    ``train_fraction`` (60 %) of the time is the training part, the rest is held out and seen by
    no fit;
-   held-out samples whose voltage leaves the training range (by > 1 %) are not scored (no
-   rate-independent model can know untrained relays); the scored fraction is reported;
-2. baseline = rate-independent hysteresis (relay Preisach grid, or play operators with
-   ``baseline="symmetric"``) + offset + linear term, fitted on the training part;
+   held-out samples whose voltage leaves the training range (by > 1 %), and every sample after the
+   first such excursion, are not scored (no rate-independent model can know untrained relays, and
+   relays an excursion switched stay switched); where that leaves fewer than 50 samples, every
+   in-range held-out sample is scored; the scored fraction and the rule are reported;
+2. baseline = rate-independent hysteresis (relay Preisach grid with its size chosen by inner
+   validation on the training part, or play operators with ``baseline="symmetric"``) + offset +
+   linear term, fitted on the training part;
 3. the held-out residual is localised (:func:`~afmsim.diagnosis.loops.localise.localise`);
 4. greedy attribution by the shared engine (:mod:`~afmsim.diagnosis.engine`): each remaining
    candidate is added to the current model, fitted on the training part, and scored on the
@@ -91,7 +94,7 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
     n = rec.n
     train = np.arange(n) < int(round(train_fraction * n))
     d = Design(rec.t, rec.v, rec.x, rec.y, train)
-    held = ~train & d.in_range  # held-out samples beyond the trained voltage range are not scored
+    held, scoring = d.scored()  # held-out samples beyond the trained voltage range are not scored
     if held.sum() < 50:
         raise ValueError(f"only {int(held.sum())} held-out samples lie inside the training voltage range; "
                          "the record's excitation must repeat its range after the first 60 %")
@@ -113,6 +116,9 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                      "play operators (symmetric PI)", "rms_gap": rms(r_base[held]), "unit": "m",
                      "gap_to_noise": outcome["baseline_gap"]["gap_to_noise"],
                      "train_rms": rms(r_base[train]), "noise_floor": sigma,
+                     "relay_levels": d.n_levels if baseline == "preisach" else None,
+                     "inner_rms_by_levels": {str(k): v for k, v in d.level_scores.items()},
+                     "heldout_scoring": scoring,
                      "travel": float(np.ptp(rec.x)), "modelled": list(modelled)},
         "where": front.localise(base),
         "effects": [att.evaluations[c] for c in avail if c in att.evaluations],

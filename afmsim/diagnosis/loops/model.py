@@ -1,11 +1,22 @@
 """Forward models voltage → displacement that are linear in their parameters, and the candidate effects.
 
-Baseline (default, ``kind="preisach"``): a smoothed-relay Preisach grid on the *recorded* voltage
+Baseline (default, ``kind="preisach"``): a smoothed-relay Preisach grid on the *training* voltage
 range (bipolar or not, any unit scale) plus one level below it (relays that, once on, no recorded
-voltage switches off) — ``x = b0 + b1·v + Σ μ_ij s_ij(v)`` with μ ≥ 0, solved by bounded linear
-least squares (:func:`scipy.optimize.lsq_linear`). ``kind="symmetric"`` uses play
-operators instead (a Prandtl–Ishlinskii model, centrally symmetric loops); only then is the
-``asymmetry`` candidate offered.
+voltage switches off) — ``x = b0 + b1·v + Σ μ_ij s_ij(v)`` with μ ≥ 0, solved by non-negative least
+squares (:func:`_solve`) with a smoothness prior on the density μ (squared second differences
+along α and β, :data:`SMOOTHING`): cells that the training part never switched on their own get the
+density their neighbours' trend continues to, not 0. It stays rate-independent (no time, no
+dynamics inside it). The grid size (its capacity) is chosen per record by inner validation on the
+training part (:meth:`Design.choose_levels`: fit on its first 3/4, score on its last 1/4, a larger
+grid of :data:`LEVEL_CHOICES` only when clearly better); the baseline and every candidate fit of the
+record share it. Held-out samples are scored inside the training voltage range and before the
+first held-out excursion beyond it (:meth:`Design.scored`). ``kind="symmetric"`` uses play
+operators instead (a Prandtl–Ishlinskii model, centrally symmetric loops, ridge :data:`RIDGE`);
+only then is the ``asymmetry`` candidate offered.
+
+Measured on null records (no added effect; held-out RMS gap / noise floor): other hysteresis
+families (:mod:`.null_plants`, development seeds 100–103) and afmsim's own plant
+(``validate_diagnosis`` nulls, development seeds 0–1) — see docs/diagnosis.md, "Status and honesty".
 
 Candidate effects (each fitted on the training part only; the hysteresis weights are refitted
 jointly with the effect):
@@ -41,11 +52,31 @@ __all__ = ["relay_features", "play_features", "ModelSpec", "FittedModel", "fit_m
            "creep_gamma_from_bank", "CANDIDATES"]
 
 CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "asymmetry")
-N_LEVELS = 16
+#: Relay-grid sizes the inner validation chooses from (levels over the training voltage range; the
+#: grid has one more level below it). The first is the default where the inner split is too short.
+#: 32 levels as a third choice made a dynamics record's diagnosis 3× slower (49 s instead of 17 s;
+#: the NNLS grows with the n(n+1)/2 relays) without smaller held-out gaps on the development nulls.
+LEVEL_CHOICES = (16, 24)
+N_LEVELS = LEVEL_CHOICES[0]
+#: Inner split: the first 3/4 of the training part fit, its last 1/4 scores.
+INNER_FRACTION = 0.75
+#: Contiguous blocks of the inner validation part for the paired test between two grid sizes.
+LEVEL_BLOCKS = 10
 N_PLAY = 12
-#: Tikhonov weight (relative to the sample count, on unit-RMS columns) on the non-negative hysteresis
-#: weights: selects a smooth relay density where the training data leave it undetermined.
+#: Tikhonov weight (relative to the sample count, on unit-RMS columns) on non-negative weights that
+#: have no smoothness prior (play operators, creep bank).
 RIDGE = 1e-5
+#: Weight (relative to the sample count) of the smoothness prior on the relay density: squared
+#: second differences of the cells' weights along α and along β (:func:`relay_curvature`). It sets
+#: the density in cells the training part never switched (or switched only together) from their
+#: neighbours, instead of leaving them at 0. Chosen on development null records (afmsim's plant,
+#: seeds 0–1; other families, seeds 100–103): geometric-mean held-out gap 5.3× the noise at 1e-3,
+#: 5.9× at 1e-2, 8.2× at 1e-1, 5.7× at 3e-4 (on a fixed 32-level grid); first differences instead: 5.9×.
+SMOOTHING = 1e-3
+#: Held-out samples count for the gap when their voltage lies within this share of the training
+#: range (beyond it the relays have no trained weight).
+RANGE_TOLERANCE = 0.01
+MIN_SCORED = 50
 
 
 @njit(cache=True, nogil=True)
@@ -73,6 +104,26 @@ def relay_features(v, v_lo, v_hi, n_levels=N_LEVELS) -> np.ndarray:
     u = (np.asarray(v, dtype=np.float64) - v_lo) / (v_hi - v_lo) * n_levels
     out = np.empty((u.size, n_levels * (n_levels + 1) // 2))
     _relay_kernel(np.ascontiguousarray(u), n_levels, out)
+    return out
+
+
+def relay_curvature(n_levels: int) -> np.ndarray:
+    """Second-difference operator on the relay density of :func:`relay_features` (columns: the
+    ``n_levels(n_levels+1)/2`` relays, ordered (i, j ≤ i)); rows: ``μ(i, j) − 2μ(i+1, j) + μ(i+2, j)``
+    along α and ``μ(i, j) − 2μ(i, j+1) + μ(i, j+2)`` along β, for every triple inside α ≥ β.
+
+    A density that varies linearly across the plane costs nothing: cells that the training part never
+    switched (alone) get the density their neighbours' trend continues to."""
+    index = {}
+    for i in range(n_levels):
+        for j in range(i + 1):
+            index[(i, j)] = len(index)
+    triples = [(k, index[a], index[b]) for (i, j), k in index.items()
+               for a, b in (((i + 1, j), (i + 2, j)), ((i, j + 1), (i, j + 2))) if a in index and b in index]
+    out = np.zeros((len(triples), len(index)))
+    rows = np.arange(len(triples))
+    for col, coefficient in enumerate((1.0, -2.0, 1.0)):
+        out[rows, [t[col] for t in triples]] = coefficient
     return out
 
 
@@ -154,10 +205,47 @@ class FittedModel:
     hysteresis: np.ndarray | None = None
 
 
-class Design:
-    """Feature matrices of one record, computed once and reused by every candidate fit."""
+def after_excursion(v, train: np.ndarray, tolerance: float = RANGE_TOLERANCE, *, until_wiped: bool = False) -> np.ndarray:
+    """True from the first sample after ``train`` whose voltage leaves the training range (by more
+    than ``tolerance`` of it) to the end of the record — or, with ``until_wiped``, only until the
+    voltage next reaches the opposite end of the range.
 
-    def __init__(self, t, v, x, y, train: np.ndarray):
+    Such an excursion switches relays (thresholds beyond the range) that no training sample moved.
+    Reaching the opposite end switches back every one of them whose other threshold lies inside the
+    range; those whose other threshold lies beyond it too stay switched (a Preisach plane wider than
+    the drive), so only the strict form leaves no output that depends on untrained weights."""
+    v = np.asarray(v, dtype=np.float64)
+    lo, hi = float(v[train].min()), float(v[train].max())
+    tol = tolerance * (hi - lo)
+    out = np.zeros(v.size, dtype=bool)
+    state = 0  # +1 / −1: an excursion above / below the range is remembered
+    for k in range(int(np.flatnonzero(train).max()) + 1, v.size):
+        if v[k] > hi + tol:
+            state = 1
+        elif v[k] < lo - tol:
+            state = -1
+        elif until_wiped and ((state == 1 and v[k] <= lo + tol) or (state == -1 and v[k] >= hi - tol)):
+            state = 0
+        out[k] = state != 0
+    return out
+
+
+def clearly_better(residual, reference, n_blocks: int = LEVEL_BLOCKS) -> bool:
+    """Does ``residual`` beat ``reference`` (paired, same samples) beyond chance? The samples are
+    cut into ``n_blocks`` contiguous blocks; the mean over blocks of the drop in mean square must
+    exceed twice its standard error (blocks, not samples: the model error is autocorrelated)."""
+    drops = [float(np.mean(b**2 - a**2)) for a, b in zip(np.array_split(residual, n_blocks),
+                                                         np.array_split(reference, n_blocks))]
+    return float(np.mean(drops)) > 2.0 * float(np.std(drops, ddof=1)) / np.sqrt(n_blocks)
+
+
+class Design:
+    """Feature matrices of one record, computed once and reused by every candidate fit.
+
+    ``n_levels``: size of the relay grid; ``None`` chooses it by inner validation on the training
+    part (:meth:`choose_levels`), so the baseline and every candidate fit of the record share it."""
+
+    def __init__(self, t, v, x, y, train: np.ndarray, n_levels: int | None = None):
         self.t, self.v, self.x, self.y, self.train = t, v, x, y, train
         self.dt = float((t[-1] - t[0]) / (t.size - 1))
         # the hysteresis grid spans the *training* voltage range: relays that only the held-out
@@ -168,44 +256,103 @@ class Design:
         pad = 1e-6 * (hi - lo)
         self.v_lo, self.v_hi = lo - pad, hi + pad
         self.vc = np.clip(v, self.v_lo, self.v_hi)
-        self.in_range = (v >= lo - 0.01 * (hi - lo)) & (v <= hi + 0.01 * (hi - lo))
+        tol = RANGE_TOLERANCE * (hi - lo)
+        self.in_range = (v >= lo - tol) & (v <= hi + tol)
         vn = (v - 0.5 * (lo + hi)) / (hi - lo)
         self.free = np.column_stack([np.ones_like(v), vn])
         self._hyst = {}
         self.span_train = float(t[train].max() - t[0])
         self.x_scale = float(np.std(x)) or 1.0
+        self.level_scores: dict = {}
+        self.n_levels = int(n_levels) if n_levels is not None else self.choose_levels()
+
+    def scored(self) -> tuple[np.ndarray, str]:
+        """Held-out samples that count for the gap, and the rule that chose them (the first that
+        leaves at least :data:`MIN_SCORED` samples; :func:`after_excursion`):
+
+        ``"before_excursion"``: inside the training voltage range and before the first held-out
+        excursion beyond it; ``"between_excursions"``: inside the range and not between an excursion
+        and the voltage's next visit to the range's opposite end; ``"in_range"``: every held-out
+        sample inside the range (outputs that depend on untrained relays are then scored too)."""
+        held = ~self.train & self.in_range
+        for rule, wiped in (("before_excursion", False), ("between_excursions", True)):
+            scored = held & ~after_excursion(self.v, self.train, until_wiped=wiped)
+            if scored.sum() >= MIN_SCORED:
+                return scored, rule
+        return held, "in_range"
+
+    def relays(self, n_levels: int) -> np.ndarray:
+        """Relay states on ``n_levels`` over the training range plus one level below it: relays
+        whose down-threshold no recorded voltage reaches (once on, never off: the Preisach plane
+        extends beyond the drive)."""
+        pad = (self.v_hi - self.v_lo) / n_levels
+        return relay_features(self.vc, self.v_lo - pad, self.v_hi, n_levels + 1)
+
+    def choose_levels(self) -> int:
+        """Relay-grid size by inner validation: the baseline is fitted on the first
+        :data:`INNER_FRACTION` of the training part and scored on the rest of it (samples inside the
+        inner fit's voltage range, before any excursion beyond it). A larger grid of
+        :data:`LEVEL_CHOICES` replaces the one chosen so far only when it is clearly better there
+        (:func:`clearly_better`); the held-out part is never looked at. ``level_scores``: inner RMS
+        error (m) per grid."""
+        idx = np.flatnonzero(self.train)
+        inner = np.zeros(self.t.size, dtype=bool)
+        inner[idx[: int(round(INNER_FRACTION * idx.size))]] = True
+        v = self.v
+        lo, hi = float(v[inner].min()), float(v[inner].max())
+        tol = RANGE_TOLERANCE * (hi - lo)
+        check = self.train & ~inner & (v >= lo - tol) & (v <= hi + tol) & ~after_excursion(v, inner)
+        if check.sum() < MIN_SCORED or hi <= lo:
+            return LEVEL_CHOICES[0]
+        best, best_residual = None, None
+        for n in LEVEL_CHOICES:
+            relays = self.relays(n)
+            wf, wp = _solve(self.free, relays, self.x, inner, smooth=relay_curvature(n + 1))
+            residual = (self.free @ wf + relays @ wp - self.x)[check]
+            self.level_scores[n] = float(np.sqrt(np.mean(residual**2)))
+            if best is None or clearly_better(residual, best_residual):
+                best, best_residual = n, residual
+                self._hyst["preisach"] = relays
+        return best
 
     def hyst(self, kind: str) -> np.ndarray:
         if kind not in self._hyst:
-            # one extra level below the recorded range: relays whose down-threshold no recorded voltage
-            # reaches (once on, never off: the Preisach plane extends beyond the drive)
-            pad = (self.v_hi - self.v_lo) / N_LEVELS
-            f = relay_features(self.vc, self.v_lo - pad, self.v_hi, N_LEVELS + 1) if kind == "preisach" else \
+            self._hyst[kind] = self.relays(self.n_levels) if kind == "preisach" else \
                 play_features(self.vc, self.v_lo, self.v_hi)
-            self._hyst[kind] = f
         return self._hyst[kind]
 
 
-def _solve(cols_free, cols_pos, target, mask):
-    """min ‖[F P]w − x‖² on ``mask`` with w_P ≥ 0; returns (weights_free, weights_pos).
+def _solve(cols_free, cols_pos, target, mask, smooth=None):
+    """min ‖[F P]w − x‖² + prior on ``mask`` with w_P ≥ 0; returns (weights_free, weights_pos).
 
     Columns are scaled to unit RMS, the problem is reduced by a QR factorisation to its
     (p × p) triangular form via the Cholesky factor of AᵀA (‖A w − x‖² = ‖R w − R⁻ᵀAᵀx‖² + const), and the free weights are split
     into non-negative ± pairs so that :func:`scipy.optimize.nnls` (Lawson–Hanson) solves it.
+    ``smooth`` (a difference operator D on the first ``smooth.shape[1]`` positive columns, the relay
+    density μ): those weights get the smoothness prior :data:`SMOOTHING`·M·‖D μ‖² (μ in units of
+    the mean column scale) and keep the columns that the training part never moves; the other
+    positive weights get the ridge :data:`RIDGE`.
     """
     a = np.hstack([cols_free, cols_pos])[mask]
     nf = cols_free.shape[1]
+    m = a.shape[0]
     scale = np.sqrt(np.mean(a**2, axis=0))
     scale[scale == 0] = 1.0
     a = a / scale
-    # hysteresis columns that never move on the training part are indistinguishable from the offset:
-    # their weights would be arbitrary (and their held-out prediction too), so they are fixed at 0
-    keep = np.r_[np.ones(nf, dtype=bool), np.std(a[:, nf:], axis=0) > 1e-6]
+    k = smooth.shape[1] if smooth is not None else 0
+    # without a prior, columns that never move on the training part are indistinguishable from the
+    # offset: their weights would be arbitrary (and their held-out prediction too), so they are fixed
+    # at 0; the smoothness prior sets them from their neighbours instead
+    keep = np.r_[np.ones(nf + k, dtype=bool), np.std(a[:, nf + k:], axis=0) > 1e-6]
     ak = a[:, keep]
     g = ak.T @ ak
-    ridge = RIDGE * a.shape[0] * np.r_[np.zeros(nf), np.ones(int(keep[nf:].sum()))]
-    g[np.diag_indices_from(g)] += ridge + 1e-12 * np.trace(g) / g.shape[0]
-    r = np.linalg.cholesky(g).T  # RᵀR = AᵀA + ridge
+    diag = RIDGE * m * np.r_[np.zeros(nf + k), np.ones(int(keep[nf + k:].sum()))]
+    if k:
+        ds = smooth / scale[nf:nf + k]
+        g[nf:nf + k, nf:nf + k] += SMOOTHING * m * np.mean(scale[nf:nf + k] ** 2) * (ds.T @ ds)
+        diag[nf:nf + k] = 1e-9 * m
+    g[np.diag_indices_from(g)] += diag + 1e-12 * np.trace(g) / g.shape[0]
+    r = np.linalg.cholesky(g).T  # RᵀR = AᵀA + prior
     b = solve_triangular(r, ak.T @ target[mask], trans="T")
     big = np.hstack([r[:, :nf], -r[:, :nf], r[:, nf:]])
     z, _ = nnls(big, b, maxiter=50 * big.shape[1])
@@ -221,6 +368,7 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
     eff = set(spec.effects)
     kind = "preisach" if spec.kind == "preisach" else "symmetric"
     hf = d.hyst(kind)
+    smooth = relay_curvature(d.n_levels + 1) if kind == "preisach" else None
     hyst_cols = np.hstack([d.free, hf])  # free offset+linear, then non-negative hysteresis weights
     n_free_h = d.free.shape[1]
     extra = []
@@ -251,7 +399,7 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
             cols = _filt(b, a, cols)
         free = np.hstack([cols[:, :n_free_h], extra])
         pos = cols[:, n_free_h:]
-        wf, wp = _solve(free, pos, d.x, d.train)
+        wf, wp = _solve(free, pos, d.x, d.train, smooth=smooth)
         pred = free @ wf + pos @ wp
         hyst_part = hyst_cols[:, :n_free_h] @ wf[:n_free_h] + hyst_cols[:, n_free_h:] @ wp[: hf.shape[1]]
         return pred, wf, wp, hyst_part

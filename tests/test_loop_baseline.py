@@ -1,0 +1,96 @@
+"""The loop diagnosis baseline (afmsim.diagnosis.loops.model): its capacity chosen inside the training
+part, the smoothness prior on the relay density, and which held-out samples are scored."""
+
+import numpy as np
+import pytest
+
+from afmsim.diagnosis.loops.model import LEVEL_CHOICES, Design, after_excursion, relay_curvature
+from afmsim.diagnosis.loops.null_plants import _relay_sum
+from afmsim.diagnosis.loops.validation import excitation
+
+
+def _drive(seed=0):
+    t, v = excitation("triangles", 500.0, 12.0, np.random.default_rng(seed))
+    return t, v, np.arange(t.size) < int(0.6 * t.size)
+
+
+def _record(hysteresis, v, rng):
+    """1e-5 m/V linear part + 2 µm of the given relay sum + 5 nm noise."""
+    return 1e-5 * v + 2e-6 * hysteresis / np.ptp(hysteresis) + 5e-9 * rng.standard_normal(v.size)
+
+
+def test_grid_size_follows_the_plants_detail():
+    t, v, train = _drive()
+    rng = np.random.default_rng(1)
+    # a plant made of the 16-level grid's own smoothed relays: no larger grid is clearly better
+    relays16 = Design(t, v, v, None, train, n_levels=16).relays(16)
+    smooth = Design(t, v, _record(relays16 @ rng.uniform(0.0, 1.0, relays16.shape[1]), v, rng), None, train)
+    assert smooth.n_levels == LEVEL_CHOICES[0]
+    # 60 sharp relays at random thresholds (steps a 0.6 V-wide smoothed relay cannot follow)
+    up = rng.uniform(1.0, 9.0, 60)
+    sharp = Design(t, v, _record(_relay_sum(v, up, up - rng.uniform(0.2, 2.0, 60), np.ones(60)), v, rng), None, train)
+    assert sharp.n_levels > LEVEL_CHOICES[0]
+    assert sharp.level_scores[sharp.n_levels] < 0.9 * sharp.level_scores[LEVEL_CHOICES[0]]
+
+
+def test_grid_choice_never_sees_the_heldout_part():
+    t, v, train = _drive(2)
+    rng = np.random.default_rng(3)
+    up = rng.uniform(1.0, 9.0, 60)
+    x = _record(_relay_sum(v, up, up - rng.uniform(0.2, 2.0, 60), np.ones(60)), v, rng)
+    spoiled = x.copy()
+    spoiled[~train] += 1e-5 * rng.standard_normal(int((~train).sum()))  # 10 µm of garbage after the split
+    a, b = Design(t, v, x, None, train), Design(t, v, spoiled, None, train)
+    assert a.n_levels == b.n_levels and a.level_scores == b.level_scores
+
+
+def test_curvature_prior_is_free_for_a_linear_density_only():
+    n = 9
+    i, j = np.tril_indices(n)  # the relay order of relay_features: (i, j <= i), row by row
+    d = relay_curvature(n)
+    assert d.shape[1] == n * (n + 1) // 2
+    assert np.allclose(d @ (0.3 + 0.2 * i - 0.1 * j), 0.0)
+    assert np.linalg.norm(d @ (i - j) ** 2.0) > 1.0
+
+
+def test_heldout_scoring_stops_at_the_first_excursion_beyond_the_training_range():
+    v = np.r_[np.linspace(0, 8, 600), np.linspace(8, 0, 400), np.linspace(0, 7, 300), np.linspace(7, 9, 100),
+              np.linspace(9, 1, 600)]
+    train = np.arange(v.size) < 1000
+    out = after_excursion(v, train)
+    first = 1300 + int(np.argmax(v[1300:] > 8.08))
+    assert not out[:first].any() and out[first:].all()
+    t = np.arange(v.size) * 1e-3
+    d = Design(t, v, 1e-5 * v, None, train, n_levels=16)
+    scored, rule = d.scored()
+    assert rule == "before_excursion" and scored.sum() == first - 1000
+    # an excursion right after the split leaves fewer than 50 samples: every in-range sample counts
+    v = np.r_[np.linspace(0, 8, 600), np.linspace(8, 9, 100), np.linspace(9, 0, 600)]
+    train = np.arange(v.size) < 600
+    d = Design(np.arange(v.size) * 1e-3, v, 1e-5 * v, None, train, n_levels=16)
+    scored, rule = d.scored()
+    assert rule == "in_range" and scored.sum() == int(np.sum(~train & (v <= 8.08))) > 500
+    # ... unless the voltage then comes back to the range's other end: scored again from there
+    v = np.r_[v, np.linspace(0, 7, 300)]
+    train = np.arange(v.size) < 600
+    first = 600 + int(np.argmax(v[600:] > 8.08))
+    assert after_excursion(v, train).sum() == v.size - first
+    wiped = after_excursion(v, train, until_wiped=True)
+    assert wiped[first:1200].all() and not wiped[-300:].any()
+    d = Design(np.arange(v.size) * 1e-3, v, 1e-5 * v, None, train, n_levels=16)
+    scored, rule = d.scored()
+    assert rule == "between_excursions" and scored[-300:].all() and not scored[first:1200].any()
+
+
+@pytest.mark.parametrize("n_levels", [None, 24])
+def test_every_candidate_fit_shares_the_grid(n_levels):
+    from afmsim.diagnosis.loops.model import ModelSpec, fit_model
+
+    t, v, train = _drive(4)
+    rng = np.random.default_rng(5)
+    x = _record(np.cumsum(np.abs(np.diff(v, prepend=v[0]))) % 3.0, v, rng)
+    d = Design(t, v, x, None, train, n_levels=n_levels)
+    base = fit_model(d, ModelSpec())
+    drift = fit_model(d, ModelSpec(effects=("drift",)))
+    width = d.n_levels + 1
+    assert base.n_params == 2 + width * (width + 1) // 2 and drift.n_params == base.n_params + 2
