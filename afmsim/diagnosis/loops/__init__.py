@@ -6,6 +6,7 @@ the attribution itself is the shared :mod:`afmsim.diagnosis.engine`.
 
 from .attribute import diagnose_loops, diagnose_record
 from .record import LoopRecord, load_record
+from .open_world import validate_open_world
 from .validation import validate_diagnosis
 
-__all__ = ["diagnose_loops", "diagnose_record", "validate_diagnosis", "load_record", "LoopRecord"]
+__all__ = ["diagnose_loops", "diagnose_record", "validate_diagnosis", "validate_open_world", "load_record", "LoopRecord"]
