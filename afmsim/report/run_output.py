@@ -101,7 +101,8 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
             figures = ordered_map(executor, _call, figure_jobs,
                                   _files_ticker(progress, "figures", [len(share) for share in shares] + [1]), wait=False)
             written += _write_arrays(result, folder, scenario_yaml)
-            figure_paths = [path for done in figures() for path in (done if isinstance(done, list) else [done])]
+            done = figures()  # a list of paths per share, then the binarized overview's path
+            figure_paths = [path for share in done[:len(shares)] for path in share] + done[len(shares):]
     finally:  # the render process is waited for even when a figure fails: nothing writes after we return
         render_paths, warning = renders_done()
     if warning:
