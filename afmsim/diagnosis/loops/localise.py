@@ -39,7 +39,7 @@ def localise(t, v, x, resid, mask) -> dict:
     dt = float((t[-1] - t[0]) / (t.size - 1))
     r = resid[mask]
     r2 = r**2
-    tt, vv, xx = t[mask], v[mask], x[mask]
+    xx = x[mask]
     n = r.size
     half = np.arange(n) < n // 2
     hold = hold_mask(v, dt)[mask]

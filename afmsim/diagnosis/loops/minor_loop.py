@@ -28,14 +28,13 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
-from scipy.linalg import cholesky, solve_triangular
-from scipy.optimize import lsq_linear, minimize
+from scipy.optimize import minimize
 from scipy.signal import lfilter, lfilter_zi
 
 from afmsim.reproducible import single_blas_thread
 
 from ..engine import rms
-from .model import N_LEVELS, creep_taus, lag_filter, relay_features
+from .model import N_LEVELS, creep_taus, lag_filter, relay_features, solve_weights
 
 __all__ = ["minor_loop_law", "minor_loop_excitation", "interior_reversals", "LAWS", "DECISIVE_RATIO"]
 
@@ -47,7 +46,6 @@ N_KNOTS = 16
 #: Duhem relaxation grid: constant part a (per unit of the normalised input) and the 1/û part p.
 RATE_GRID = (0.3, 1.0, 2.0, 4.0, 8.0, 16.0)
 INVERSE_GRID = (0.0, 0.5, 1.5)
-RIDGE = 1e-6
 
 
 def minor_loop_excitation(amplitudes_V=(4.5, 3.5, 2.5, 1.5, 0.75), centre_V: float = 4.55, peak_V: float = 9.1,
@@ -153,25 +151,12 @@ def _creep_columns(vn, taus, dt) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def _solve(free, positive, x, train):
-    """Least squares on ``train`` with the ``positive`` columns' weights ≥ 0 (unit-RMS columns, a
-    small ridge on every weight); returns the prediction over the whole record."""
-    a = np.hstack([free, positive])
-    scale = np.sqrt(np.mean(a[train] ** 2, axis=0))
-    scale[scale == 0] = 1.0
-    a = a / scale
-    # reduce to the (p × p) triangular problem with RᵀR = AᵀA + ridge: ‖A w − x‖² = ‖R w − R⁻ᵀAᵀx‖² + const
-    at = a[train]
-    gram = at.T @ at
-    gram[np.diag_indices_from(gram)] += RIDGE * at.shape[0]
-    r = cholesky(gram)  # upper: gram = RᵀR
-    target = solve_triangular(r, at.T @ x[train], trans="T")
-    if positive.shape[1]:
-        lower = np.r_[np.full(free.shape[1], -np.inf), np.zeros(positive.shape[1])]
-        w = lsq_linear(r, target, bounds=(lower, np.inf), method="bvls").x
-    else:
-        w = solve_triangular(r, target)
-    return a @ w
+def _predict(free, positive, x, train):
+    """The prediction over the whole record of the least-squares fit on ``train`` with the
+    ``positive`` columns' weights ≥ 0 (the baseline's solver,
+    :func:`afmsim.diagnosis.loops.model.solve_weights`)."""
+    w_free, w_positive = solve_weights(free, positive, x, train)
+    return free @ w_free + positive @ w_positive
 
 
 def _fit_duhem(v, lo, hi, x, train, extra) -> tuple[np.ndarray, float, float]:
@@ -180,7 +165,7 @@ def _fit_duhem(v, lo, hi, x, train, extra) -> tuple[np.ndarray, float, float]:
     none = np.empty((v.size, 0))
 
     def predict(rate, inverse):
-        return _solve(np.hstack([duhem_columns(v, lo, hi, rate, inverse), extra]), none, x, train)
+        return _predict(np.hstack([duhem_columns(v, lo, hi, rate, inverse), extra]), none, x, train)
 
     def train_error(theta):
         return rms((predict(np.exp(theta[0]), abs(theta[1])) - x)[train])
@@ -221,7 +206,7 @@ def minor_loop_law(t, v, x, train, sigma: float) -> dict:
     vn = (vc - 0.5 * (lo + hi)) / span
     creep = _creep_columns(vn, creep_taus(dt, float(t[train].max() - t[0])), dt)
     free = np.column_stack([np.ones_like(v), vn, creep])
-    preisach = _solve(free, np.hstack([relay_features(vc, lo, hi), latched_relays(vc, lo, hi)]), x, train)
+    preisach = _predict(free, np.hstack([relay_features(vc, lo, hi), latched_relays(vc, lo, hi)]), x, train)
     duhem, rate, inverse = _fit_duhem(vc, lo, hi, x, train, creep)
     gaps = {"preisach": rms((preisach - x)[held]), "duhem": rms((duhem - x)[held])}
     train_gaps = {"preisach": rms((preisach - x)[train]), "duhem": rms((duhem - x)[train])}

@@ -3,7 +3,7 @@
 Baseline (default, ``kind="preisach"``): a smoothed-relay Preisach grid on the *training* voltage
 range (bipolar or not, any unit scale) plus one level below it (relays that, once on, no recorded
 voltage switches off) — ``x = b0 + b1·v + Σ μ_ij s_ij(v)`` with μ ≥ 0, solved by non-negative least
-squares (:func:`_solve`) with a smoothness prior on the density μ (squared second differences
+squares (:func:`solve_weights`) with a smoothness prior on the density μ (squared second differences
 along α and β, :data:`SMOOTHING`): cells that the training part never switched on their own get the
 density their neighbours' trend continues to, not 0. It stays rate-independent (no time, no
 dynamics inside it). The grid size (its capacity) is chosen per record by inner validation on the
@@ -48,7 +48,7 @@ from scipy.optimize import nnls
 from scipy.linalg import solve_triangular
 from scipy.signal import lfilter, lfilter_zi
 
-__all__ = ["relay_features", "play_features", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
+__all__ = ["relay_features", "play_features", "solve_weights", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
            "creep_gamma_from_bank", "CANDIDATES"]
 
 CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "asymmetry")
@@ -307,7 +307,7 @@ class Design:
         best, best_residual = None, None
         for n in LEVEL_CHOICES:
             relays = self.relays(n)
-            wf, wp = _solve(self.free, relays, self.x, inner, smooth=relay_curvature(n + 1))
+            wf, wp = solve_weights(self.free, relays, self.x, inner, smooth=relay_curvature(n + 1))
             residual = (self.free @ wf + relays @ wp - self.x)[check]
             self.level_scores[n] = float(np.sqrt(np.mean(residual**2)))
             if best is None or clearly_better(residual, best_residual):
@@ -322,7 +322,7 @@ class Design:
         return self._hyst[kind]
 
 
-def _solve(cols_free, cols_pos, target, mask, smooth=None):
+def solve_weights(cols_free, cols_pos, target, mask, smooth=None):
     """min ‖[F P]w − x‖² + prior on ``mask`` with w_P ≥ 0; returns (weights_free, weights_pos).
 
     Columns are scaled to unit RMS, the problem is reduced by a QR factorisation to its
@@ -399,7 +399,7 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
             cols = _filt(b, a, cols)
         free = np.hstack([cols[:, :n_free_h], extra])
         pos = cols[:, n_free_h:]
-        wf, wp = _solve(free, pos, d.x, d.train, smooth=smooth)
+        wf, wp = solve_weights(free, pos, d.x, d.train, smooth=smooth)
         pred = free @ wf + pos @ wp
         hyst_part = hyst_cols[:, :n_free_h] @ wf[:n_free_h] + hyst_cols[:, n_free_h:] @ wp[: hf.shape[1]]
         return pred, wf, wp, hyst_part
