@@ -62,7 +62,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import bilinear, butter, cont2discrete, fftconvolve, lfilter, lfilter_zi, sosfiltfilt
+from scipy.signal import bilinear, butter, cont2discrete, lfilter, lfilter_zi, sosfiltfilt
 from scipy.stats import binomtest
 
 from afmsim.stage import AsymmetricPreisach
@@ -73,7 +73,7 @@ from .attribute import diagnose_record
 from .distractors import gain_change, mains_pickup, rate_dependent_width, slip
 from .null_plants import NULL_FAMILIES, null_plant
 from .record import load_record
-from .validation import EXCITATIONS, excitation
+from .validation import EXCITATIONS, excitation, superpose_steps
 
 __all__ = ["validate_open_world", "headline", "proportion_text", "case_plan", "make_case", "run_case", "score_cases", "proportion", "CaseSpec",
            "PLANTS", "EFFECT_LEVELS", "DISTRACTOR_LEVELS", "DEVELOPMENT_SEEDS", "FRESH_SEEDS", "TARGETS"]
@@ -197,11 +197,6 @@ def plant_displacement(plant: str, v: np.ndarray, plant_seed: int) -> np.ndarray
     return null_plant(plant, v, np.random.default_rng(plant_seed))
 
 
-def _superpose(t, h, kernel):
-    """Σ_j Δh_j·kernel(t − t_j): the response of a linear creep law to every increment of h."""
-    return fftconvolve(np.diff(h, prepend=0.0), kernel(t - t[0]))[: h.size]
-
-
 def creep_term(t, h, gamma: float, form: str, rng: np.random.Generator) -> np.ndarray:
     """Creep (m) of the hysteresis output ``h``: log-law or stretched-exponential step responses
     scaled so that the unit step's rise between 0.1 s and 10 s is ``gamma`` per decade."""
@@ -212,7 +207,7 @@ def creep_term(t, h, gamma: float, form: str, rng: np.random.Generator) -> np.nd
         tau, beta = rng.uniform(1.0, 20.0), rng.uniform(0.3, 0.6)
         shape = lambda s: 1.0 - np.exp(-np.power(np.maximum(s, 0.0) / tau, beta))  # noqa: E731
     a = 2.0 * gamma / float(shape(10.0) - shape(0.1))
-    return _superpose(t, h, lambda s: a * shape(s))
+    return superpose_steps(t, h, lambda s: a * shape(s))
 
 
 def drift_term(t, rate: float, form: str, rng: np.random.Generator) -> np.ndarray:

@@ -41,7 +41,7 @@ from .attribute import diagnose_record
 from .model import Design, ModelSpec, fit_model
 from .record import load_record
 
-__all__ = ["validate_diagnosis", "make_case", "case_plan", "EXCITATIONS"]
+__all__ = ["validate_diagnosis", "make_case", "case_plan", "superpose_steps", "EXCITATIONS"]
 
 EXCITATIONS = ("triangles", "steps", "sines", "noise")
 MAGNITUDES = {
@@ -105,11 +105,15 @@ def excitation(kind: str, fs: float, duration: float, rng: np.random.Generator) 
     return t, np.clip(v, 0.0, 10.0)
 
 
+def superpose_steps(t, h, kernel):
+    """Σ_j Δh_j·kernel(t − t_j): the response of a linear creep law with step response ``kernel``
+    (a function of the time since the step, s) to every increment of ``h`` (FFT convolution)."""
+    return fftconvolve(np.diff(h, prepend=0.0), kernel(t - t[0]))[: h.size]
+
+
 def _log_creep(t, h, gamma, tau0=0.01):
     """Log-law creep by superposing step responses γ·log10(1 + t/τ0) of every increment of h."""
-    dh = np.diff(h, prepend=0.0)
-    kernel = gamma * np.log10(1.0 + t / tau0)
-    return fftconvolve(dh, kernel)[: h.size]
+    return superpose_steps(t, h, lambda s: gamma * np.log10(1.0 + s / tau0))
 
 
 def _dynamics(fs, f_amp, zeta=0.15):
