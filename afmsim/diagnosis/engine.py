@@ -34,7 +34,7 @@ import numpy as np
 
 from .plausible import implausible
 
-__all__ = ["Front", "Rules", "Attribution", "attribute", "significance", "noise_floor", "conclude",
+__all__ = ["Front", "Rules", "Attribution", "attribute", "significance", "noise_floor", "decorrelation_length", "conclude",
            "verdict_text", "effect_lines", "ratio_text", "rms", "HONEST_FACTOR", "STATUSES"]
 
 HONEST_FACTOR = 2.0
@@ -51,7 +51,8 @@ def noise_floor(x) -> float:
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
-def _decorrelation_length(r) -> float:
+def decorrelation_length(r) -> float:
+    """Lag (samples) at which the autocorrelation of ``r`` first falls below 1/e (≥ 1)."""
     r = r - r.mean()
     n = r.size
     f = np.fft.rfft(r, 2 * n)
@@ -74,7 +75,7 @@ def significance(r0, r1, sigma, k_extra, *, n_blocks=10) -> dict:
     n = r0.size
     rss0, rss1 = float(np.sum(r0**2)), float(np.sum(r1**2))
     step = 1.0 - np.sqrt(rss1 / rss0) if rss0 > 0 else 0.0
-    n_eff = max(n / _decorrelation_length(r0), 5.0)
+    n_eff = max(n / decorrelation_length(r0), 5.0)
     dbic = n_eff * np.log(max(rss1, 1e-300) / rss0) + k_extra * np.log(n_eff)
     blocks = np.array_split(r0**2 - r1**2, n_blocks)
     frac_pos = float(np.mean([b.mean() > 0 for b in blocks]))

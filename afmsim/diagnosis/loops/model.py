@@ -31,8 +31,16 @@ jointly with the effect):
 * ``dynamics`` — first-order lag ``1/(τ s + 1)`` on the hysteresis(+creep) output, discretised
   either by Tustin (the record is a sampled smooth signal) or by a zero-order hold (half a sample
   more delay: what a lag shorter than one sample looks like after a voltage step); τ and the
-  discretisation by a grid search on the training error, weights refitted. Reported as the
-  low-frequency delay (comparable with a plant's 1/ω_a + 2ζ/ω_0) and the discretisation.
+  discretisation by a grid search on the training error, weights refitted. Then, where the
+  training part asks for it, a lightly damped resonance ``ω0²/(s² + 2ζω0 s + ω0²)`` after the lag
+  (zero-order-hold discretisation; f0, ζ estimated by an equation-error ARX fit between the
+  record and the lag model's prediction, refined by full refits on a small grid around it, τ then
+  searched again; kept only when the training BIC on decorrelated samples improves by > 6 with
+  its 2 extra parameters):
+  what a stage's first mechanical mode does after every step or triangle corner (it rings, which
+  no first-order lag can). Reported as the low-frequency delay (τ + 2ζ/ω0, comparable with a
+  plant's 1/ω_a + 2ζ/ω_0), the discretisation, and ``resonance_hz`` / ``damping_ratio`` when the
+  resonance is kept.
 * ``cross_coupling`` — ``+ c·y_m`` (only with a ``y_m`` column).
 * ``asymmetry`` — (only for the symmetric baseline) ``+ q2·v² + q3·v³ + Σ e_k·v·P_k(v)``: an even
   mean curve and loop widths that vary along the travel (2 + N_PLAY free terms).
@@ -46,7 +54,9 @@ import numpy as np
 from numba import njit
 from scipy.optimize import nnls
 from scipy.linalg import solve_triangular
-from scipy.signal import lfilter, lfilter_zi
+from scipy.signal import cont2discrete, lfilter, lfilter_zi
+
+from ..engine import decorrelation_length
 
 __all__ = ["relay_features", "play_features", "solve_weights", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
            "creep_gamma_from_bank", "CANDIDATES"]
@@ -162,6 +172,30 @@ LAG_DISCRETISATIONS = {"tustin": dynamics_lag_filter, "zoh": lag_filter}
 def lag_delay(discretisation: str, tau: float, dt: float) -> float:
     """Low-frequency delay [s] of the discretised lag: τ (Tustin) or τ + dt/2 (zero-order hold)."""
     return float(tau + (0.5 * dt if discretisation == "zoh" else 0.0))
+
+
+#: A mode with ζ at or above this does not ring (no resonance is fitted).
+RESONANCE_MAX_ZETA = 0.7
+#: Refinement of the ARX estimate (:func:`estimate_resonance`) by full refits: f0·(1 + ζ·step), ζ·factor.
+RESONANCE_F0_STEPS = (-1.0, -0.5, 0.0, 0.5, 1.0)
+RESONANCE_ZETA_FACTORS = (0.7, 1.0, 1.4)
+#: The resonance is kept when it lowers the training BIC (decorrelated sample count) by more than this.
+RESONANCE_BIC = 6.0
+
+
+def resonance_filter(f0: float, zeta: float, dt: float):
+    """Zero-order-hold discretisation of ω0²/(s² + 2ζω0 s + ω0²) (f0 in Hz, dt in s): ``b, a``
+    for ``lfilter``. Its low-frequency delay is 2ζ/ω0 + dt/2."""
+    w0 = 2.0 * np.pi * f0
+    b, a, _ = cont2discrete(([w0 * w0], [1.0, 2.0 * zeta * w0, w0 * w0]), dt, method="zoh")
+    return np.ravel(b), np.asarray(a, dtype=float)
+
+
+def resonance_frequencies(dt: float) -> tuple[float, float]:
+    """Band (Hz) where a resonance is looked for: from max(fs/200, 20 Hz) to 0.45·fs (fs = 1/dt)."""
+    fs = 1.0 / dt
+    lo = max(fs / 200.0, 20.0)
+    return lo, max(0.45 * fs, 2 * lo)
 
 
 def _filt(b, a, cols):
@@ -363,6 +397,29 @@ def solve_weights(cols_free, cols_pos, target, mask, smooth=None):
     return w[:nf], w[nf:]
 
 
+def estimate_resonance(x, prediction, train, dt) -> tuple[float, float] | None:
+    """(f0 [Hz], ζ) of a second-order mode between ``prediction`` (a rate-independent model of
+    the record) and the measured ``x``, by an equation-error ARX fit on the training samples,
+    ``x[k] = −a1·x[k−1] − a2·x[k−2] + b0·p[k] + b1·p[k−1] + b2·p[k−2] + c`` (linear least squares),
+    whose poles give ω0 and ζ. None when the poles are real or unstable, or the mode lies outside
+    :func:`resonance_frequencies` or is not lightly damped (ζ ≥ 0.7): no ringing to model."""
+    k = np.flatnonzero(train)
+    k = k[k >= 2]
+    a = np.column_stack([-x[k - 1], -x[k - 2], prediction[k], prediction[k - 1], prediction[k - 2], np.ones(k.size)])
+    scale = np.sqrt(np.mean(a**2, axis=0))
+    scale[scale == 0] = 1.0
+    coefficients = np.linalg.lstsq(a / scale, x[k], rcond=None)[0] / scale
+    poles = np.roots([1.0, coefficients[0], coefficients[1]])
+    if np.all(np.abs(poles.imag) < 1e-12) or np.any(np.abs(poles) >= 1.0):
+        return None
+    pole = poles[np.argmax(poles.imag)]
+    sigma, omega_d = -np.log(abs(pole)) / dt, float(np.angle(pole)) / dt
+    w0 = float(np.hypot(sigma, omega_d))
+    f0, zeta = w0 / (2 * np.pi), float(sigma / w0)
+    grid = resonance_frequencies(dt)
+    return (f0, zeta) if grid[0] <= f0 <= grid[-1] and zeta < RESONANCE_MAX_ZETA else None
+
+
 def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
     """Fit ``spec`` on the training mask of ``d``; the prediction covers the whole record."""
     eff = set(spec.effects)
@@ -394,9 +451,11 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
         if creep_basis is not None:
             cols = np.hstack([hyst_cols, creep_basis])
         if lag is not None:
-            discretisation, tau = lag
+            discretisation, tau, mode = lag
             b, a = LAG_DISCRETISATIONS[discretisation](tau, d.dt)
             cols = _filt(b, a, cols)
+            if mode is not None:
+                cols = _filt(*resonance_filter(*mode, d.dt), cols)
         free = np.hstack([cols[:, :n_free_h], extra])
         pos = cols[:, n_free_h:]
         wf, wp = solve_weights(free, pos, d.x, d.train, smooth=smooth)
@@ -425,20 +484,43 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
         def train_error(candidate):
             return float(np.mean((fit_with(candidate)[0] - d.x)[d.train] ** 2))
 
-        grid = np.geomspace(0.3 * d.dt, max(0.02, 3 * d.dt), 10)
-        best = None
-        for discretisation in LAG_DISCRETISATIONS:
-            errors = {float(tau): train_error((discretisation, tau)) for tau in grid}
-            k = int(np.argmin(list(errors.values())))
-            # one refinement around the best grid point (geomspace keeps the end points exact)
-            for tau in np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)], 5):
-                tau = float(tau)
-                error = errors[tau] if tau in errors else train_error((discretisation, tau))
-                if best is None or error < best[0]:
-                    best = (error, (discretisation, tau))
-        lag = best[1]
-        params["dynamics"] = {"lag_time_constant_s": lag_delay(*lag, d.dt), "discretisation": lag[0]}
+        def best_lag(mode, discretisations=tuple(LAG_DISCRETISATIONS)):
+            """(training error, (discretisation, τ, mode)) of the best lag with the resonance ``mode``."""
+            grid = np.geomspace(0.3 * d.dt, max(0.02, 3 * d.dt), 10)
+            best = None
+            for discretisation in discretisations:
+                errors = {float(tau): train_error((discretisation, tau, mode)) for tau in grid}
+                k = int(np.argmin(list(errors.values())))
+                # one refinement around the best grid point (geomspace keeps the end points exact)
+                for tau in np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)], 5):
+                    tau = float(tau)
+                    error = errors[tau] if tau in errors else train_error((discretisation, tau, mode))
+                    if best is None or error < best[0]:
+                        best = (error, (discretisation, tau, mode))
+            return best
+
+        error_lag, lag = best_lag(None)
+        lag_prediction = fit_with(lag)[0]
+        estimate = estimate_resonance(d.x, lag_prediction, d.train, d.dt)
+        if estimate is not None:
+            f0, zeta = estimate
+            modes = [(f0 * (1 + zeta * step), zeta * factor) for step in RESONANCE_F0_STEPS
+                     for factor in RESONANCE_ZETA_FACTORS]
+            errors = [train_error((lag[0], lag[1], mode)) for mode in modes]
+            error_mode, lag_mode = best_lag(modes[int(np.argmin(errors))], (lag[0],))
+            n_eff = max(int(d.train.sum()) / decorrelation_length((d.x - lag_prediction)[d.train]), 5.0)
+            if n_eff * np.log(error_mode / error_lag) + 2 * np.log(n_eff) < -RESONANCE_BIC:
+                lag = lag_mode
+        discretisation, tau, mode = lag
+        delay = lag_delay(discretisation, tau, d.dt)
+        params["dynamics"] = {"discretisation": discretisation}
         n_params += 2  # τ and the discretisation
+        if mode is not None:
+            f0, zeta = mode
+            delay += 2 * zeta / (2 * np.pi * f0) + 0.5 * d.dt
+            params["dynamics"].update(resonance_hz=float(f0), damping_ratio=float(zeta))
+            n_params += 2
+        params["dynamics"]["lag_time_constant_s"] = float(delay)
     pred, wf, wp, hpart, creep = fit_with(lag)
     for k, name in enumerate(names):
         val = float(wf[n_free_h + k])
