@@ -273,7 +273,7 @@ def validate_diagnosis(n_cases: int = 30, seed: int = 0) -> dict:
     eff = [c for c in cases if c["effects"]]
     # headline parameter recovery over the parameters with an exact truth (drift rate, coupling,
     # creep γ); the dynamics lag is reported separately: its truth, 1/ω_a + 2ζ/ω_0, is the
-    # low-frequency delay of a 3rd-order plant that a first-order lag only approximates
+    # low-frequency delay of a 3rd-order plant that the candidate's lag (+ mode) only approximates
     rel = [p["rel_error"] for c in cases for n, p in c["params"].items() if n != "dynamics"]
     rel_dyn = [p["rel_error"] for c in cases for n, p in c["params"].items() if n == "dynamics"]
     detectable = [c for c in eff if c.get("oracle_shrink", 1.0) >= 0.1]
