@@ -59,7 +59,7 @@ from scipy.signal import cont2discrete, lfilter, lfilter_zi
 from ..engine import decorrelation_length
 
 __all__ = ["relay_features", "play_features", "solve_weights", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
-           "creep_gamma_from_bank", "CANDIDATES"]
+           "creep_gamma_from_bank", "resonance_filter", "resonance_band", "estimate_resonance", "CANDIDATES"]
 
 CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "asymmetry")
 #: Relay-grid sizes the inner validation chooses from (levels over the training voltage range; the
@@ -191,7 +191,7 @@ def resonance_filter(f0: float, zeta: float, dt: float):
     return np.ravel(b), np.asarray(a, dtype=float)
 
 
-def resonance_frequencies(dt: float) -> tuple[float, float]:
+def resonance_band(dt: float) -> tuple[float, float]:
     """Band (Hz) where a resonance is looked for: from max(fs/200, 20 Hz) to 0.45·fs (fs = 1/dt)."""
     fs = 1.0 / dt
     lo = max(fs / 200.0, 20.0)
@@ -402,7 +402,7 @@ def estimate_resonance(x, prediction, train, dt) -> tuple[float, float] | None:
     the record) and the measured ``x``, by an equation-error ARX fit on the training samples,
     ``x[k] = −a1·x[k−1] − a2·x[k−2] + b0·p[k] + b1·p[k−1] + b2·p[k−2] + c`` (linear least squares),
     whose poles give ω0 and ζ. None when the poles are real or unstable, or the mode lies outside
-    :func:`resonance_frequencies` or is not lightly damped (ζ ≥ 0.7): no ringing to model."""
+    :func:`resonance_band` or is not lightly damped (ζ ≥ 0.7): no ringing to model."""
     k = np.flatnonzero(train)
     k = k[k >= 2]
     a = np.column_stack([-x[k - 1], -x[k - 2], prediction[k], prediction[k - 1], prediction[k - 2], np.ones(k.size)])
@@ -416,7 +416,7 @@ def estimate_resonance(x, prediction, train, dt) -> tuple[float, float] | None:
     sigma, omega_d = -np.log(abs(pole)) / dt, float(np.angle(pole)) / dt
     w0 = float(np.hypot(sigma, omega_d))
     f0, zeta = w0 / (2 * np.pi), float(sigma / w0)
-    grid = resonance_frequencies(dt)
+    grid = resonance_band(dt)
     return (f0, zeta) if grid[0] <= f0 <= grid[-1] and zeta < RESONANCE_MAX_ZETA else None
 
 
@@ -479,10 +479,17 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
             creep = (c, taus)
         return pred, wf, wp, hpart, creep
 
+    fits = {}  # (discretisation, τ, mode) → fit_with's result: the search and the final fit share them
+
+    def fitted(lag):
+        if lag not in fits:
+            fits[lag] = fit_with(lag)
+        return fits[lag]
+
     lag = None
     if "dynamics" in eff:
         def train_error(candidate):
-            return float(np.mean((fit_with(candidate)[0] - d.x)[d.train] ** 2))
+            return float(np.mean((fitted(candidate)[0] - d.x)[d.train] ** 2))
 
         def best_lag(mode, discretisations=tuple(LAG_DISCRETISATIONS)):
             """(training error, (discretisation, τ, mode)) of the best lag with the resonance ``mode``."""
@@ -500,7 +507,7 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
             return best
 
         error_lag, lag = best_lag(None)
-        lag_prediction = fit_with(lag)[0]
+        lag_prediction = fitted(lag)[0]
         estimate = estimate_resonance(d.x, lag_prediction, d.train, d.dt)
         if estimate is not None:
             f0, zeta = estimate
@@ -521,7 +528,7 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
             params["dynamics"].update(resonance_hz=float(f0), damping_ratio=float(zeta))
             n_params += 2
         params["dynamics"]["lag_time_constant_s"] = float(delay)
-    pred, wf, wp, hpart, creep = fit_with(lag)
+    pred, wf, wp, hpart, creep = fitted(lag)
     for k, name in enumerate(names):
         val = float(wf[n_free_h + k])
         if name == "drift":
