@@ -4,7 +4,7 @@ part, the smoothness prior on the relay density, and which held-out samples are 
 import numpy as np
 import pytest
 
-from afmsim.diagnosis.loops.model import LEVEL_CHOICES, Design, after_excursion, relay_curvature
+from afmsim.diagnosis.loops.model import LEVEL_CHOICES, Design, ModelSpec, after_excursion, fit_model, relay_curvature
 from afmsim.diagnosis.loops.null_plants import _relay_sum
 from afmsim.diagnosis.loops.validation import excitation
 
@@ -82,10 +82,33 @@ def test_heldout_scoring_stops_at_the_first_excursion_beyond_the_training_range(
     assert rule == "between_excursions" and scored[-300:].all() and not scored[first:1200].any()
 
 
+def test_heldout_states_the_training_part_never_determined_are_not_scored():
+    # training: up from rest to 9 V, then loops between 9 V and 4 V; held out: the same loops, then a
+    # descent to 1 V and back. Relays with down-thresholds below 4 V were switched on together on the
+    # first rise and never off: the descent switches them off one by one, with weights no training
+    # sample determined, although every voltage lies inside the training range.
+    loop = np.r_[np.linspace(9, 4, 200), np.linspace(4, 9, 200)]
+    v = np.r_[np.linspace(0, 9, 300), np.tile(loop, 4), np.tile(loop, 2), np.linspace(9, 1, 400), np.linspace(1, 9, 400)]
+    train = np.arange(v.size) < 1900
+    t = np.arange(v.size) * 1e-3
+    rng = np.random.default_rng(7)
+    up = rng.uniform(0.5, 9.0, 80)
+    x = _record(_relay_sum(v, up, up - rng.uniform(0.2, 4.0, 80), rng.uniform(0.5, 1.5, 80)), v, rng)
+    d = Design(t, v, x, None, train, n_levels=16)
+    scored, rule = d.scored()
+    descent = np.arange(v.size) >= 2700
+    assert rule == "trained_states"
+    assert scored[1900:2700].mean() > 0.9  # the repeated loops count
+    assert not scored[descent & (v < 3.5)].any()  # below every training reversal: not determined
+    assert scored[-5:].all()  # back at 9 V: every relay is on again, as in training
+    # the excluded states are where a rate-independent fit goes wrong, the scored ones are not
+    r = x - fit_model(d, ModelSpec()).prediction
+    untrained = ~train & ~scored
+    assert np.sqrt(np.mean(r[untrained] ** 2)) > 3 * np.sqrt(np.mean(r[scored] ** 2))
+
+
 @pytest.mark.parametrize("n_levels", [None, 24])
 def test_every_candidate_fit_shares_the_grid(n_levels):
-    from afmsim.diagnosis.loops.model import ModelSpec, fit_model
-
     t, v, train = _drive(4)
     rng = np.random.default_rng(5)
     x = _record(np.cumsum(np.abs(np.diff(v, prepend=v[0]))) % 3.0, v, rng)

@@ -9,8 +9,9 @@ density their neighbours' trend continues to, not 0. It stays rate-independent (
 dynamics inside it). The grid size (its capacity) is chosen per record by inner validation on the
 training part (:meth:`Design.choose_levels`: fit on its first 3/4, score on its last 1/4, a larger
 grid of :data:`LEVEL_CHOICES` only when clearly better); the baseline and every candidate fit of the
-record share it. Held-out samples are scored inside the training voltage range and before the
-first held-out excursion beyond it (:meth:`Design.scored`). ``kind="symmetric"`` uses play
+record share it. Held-out samples are scored inside the training voltage range, before the
+first held-out excursion beyond it, and in relay states that the training part determines
+(:meth:`Design.scored`, :func:`untrained_state`). ``kind="symmetric"`` uses play
 operators instead (a Prandtl–Ishlinskii model, centrally symmetric loops, ridge :data:`RIDGE`);
 only then is the ``asymmetry`` candidate offered.
 
@@ -58,7 +59,7 @@ from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
 from ..engine import decorrelation_length
 
-__all__ = ["relay_features", "play_features", "solve_weights", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
+__all__ = ["relay_features", "play_features", "solve_weights", "untrained_state", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
            "creep_gamma_from_bank", "resonance_filter", "resonance_band", "estimate_resonance", "CANDIDATES"]
 
 CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "asymmetry")
@@ -87,6 +88,14 @@ SMOOTHING = 1e-3
 #: range (beyond it the relays have no trained weight).
 RANGE_TOLERANCE = 0.01
 MIN_SCORED = 50
+#: A direction of the relay-state space counts as determined by a fit part when its singular value
+#: there (the root of the summed squared relay states along it) is at least this: the least-squares
+#: weight along it is then known to a third of the noise per unit of relay state.
+MIN_SINGULAR = 3.0
+#: A held-out sample counts as a trained state when at most this much of its relay state (Euclidean
+#: norm in relay units: one relay switched = 1) lies outside the directions the training part
+#: determines. Chosen with MIN_SINGULAR on development null records (other families, seeds 100–101).
+STATE_TOLERANCE = 0.5
 
 
 @njit(cache=True, nogil=True)
@@ -264,6 +273,20 @@ def after_excursion(v, train: np.ndarray, tolerance: float = RANGE_TOLERANCE, *,
     return out
 
 
+def untrained_state(relays: np.ndarray, fit: np.ndarray) -> np.ndarray:
+    """Norm (relay units) of each sample's relay state outside the span of the states that the
+    samples ``fit`` determine (directions of singular value ≥ :data:`MIN_SINGULAR`, offset included).
+
+    A Preisach prediction is a weighted sum of relay states; where a held-out state is not a
+    combination of trained ones — a descent below every training reversal, a new pair of step
+    levels — its value rests on weights that no training sample constrained (only the smoothness
+    prior sets them), however well the voltage stays inside the training range."""
+    a = np.hstack([np.ones((relays.shape[0], 1)), relays])
+    power, vectors = np.linalg.eigh(a[fit].T @ a[fit])
+    basis = vectors[:, power >= MIN_SINGULAR**2]
+    return np.linalg.norm(a - (a @ basis) @ basis.T, axis=1)
+
+
 def clearly_better(residual, reference, n_blocks: int = LEVEL_BLOCKS) -> bool:
     """Does ``residual`` beat ``reference`` (paired, same samples) beyond chance? The samples are
     cut into ``n_blocks`` contiguous blocks; the mean over blocks of the drop in mean square must
@@ -302,17 +325,23 @@ class Design:
 
     def scored(self) -> tuple[np.ndarray, str]:
         """Held-out samples that count for the gap, and the rule that chose them (the first that
-        leaves at least :data:`MIN_SCORED` samples; :func:`after_excursion`):
+        leaves at least :data:`MIN_SCORED` samples; :func:`after_excursion`, :func:`untrained_state`):
 
-        ``"before_excursion"``: inside the training voltage range and before the first held-out
-        excursion beyond it; ``"between_excursions"``: inside the range and not between an excursion
-        and the voltage's next visit to the range's opposite end; ``"in_range"``: every held-out
-        sample inside the range (outputs that depend on untrained relays are then scored too)."""
+        ``"trained_states"``: inside the training voltage range, before the first held-out excursion
+        beyond it, and in a relay state (on the record's grid) that the training part determines;
+        ``"before_excursion"``: the first two conditions only; ``"between_excursions"``: inside the
+        range and not between an excursion and the voltage's next visit to the range's opposite end;
+        ``"in_range"``: every held-out sample inside the range (outputs that depend on untrained
+        relays are then scored too)."""
         held = ~self.train & self.in_range
-        for rule, wiped in (("before_excursion", False), ("between_excursions", True)):
-            scored = held & ~after_excursion(self.v, self.train, until_wiped=wiped)
+        before = held & ~after_excursion(self.v, self.train)
+        trained = before & (untrained_state(self.hyst("preisach"), self.train) <= STATE_TOLERANCE)
+        for rule, scored in (("trained_states", trained), ("before_excursion", before)):
             if scored.sum() >= MIN_SCORED:
                 return scored, rule
+        scored = held & ~after_excursion(self.v, self.train, until_wiped=True)
+        if scored.sum() >= MIN_SCORED:
+            return scored, "between_excursions"
         return held, "in_range"
 
     def relays(self, n_levels: int) -> np.ndarray:
@@ -338,9 +367,11 @@ class Design:
         check = self.train & ~inner & (v >= lo - tol) & (v <= hi + tol) & ~after_excursion(v, inner)
         if check.sum() < MIN_SCORED or hi <= lo:
             return LEVEL_CHOICES[0]
+        grids = {n: self.relays(n) for n in LEVEL_CHOICES}
+        trained = check & (untrained_state(grids[LEVEL_CHOICES[0]], inner) <= STATE_TOLERANCE)
+        check = trained if trained.sum() >= MIN_SCORED else check  # as :meth:`scored` does
         best, best_residual = None, None
-        for n in LEVEL_CHOICES:
-            relays = self.relays(n)
+        for n, relays in grids.items():
             wf, wp = solve_weights(self.free, relays, self.x, inner, smooth=relay_curvature(n + 1))
             residual = (self.free @ wf + relays @ wp - self.x)[check]
             self.level_scores[n] = float(np.sqrt(np.mean(residual**2)))
