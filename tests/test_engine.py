@@ -68,6 +68,17 @@ def test_nothing_missing_only_when_the_gap_is_within_twice_the_noise():
     assert "nothing significant is missing" in text
 
 
+def test_a_significant_effect_is_not_named_once_the_gap_is_within_twice_the_noise():
+    # 3 nm/min over 60 s: the drift term passes the significance test, but the baseline already
+    # fits within 2x the noise floor - by the status' own standard nothing is missing
+    front = ToyFront(_record(rate=3e-9 / 60))
+    att = attribute(front, ["drift"], SIGMA)
+    out = conclude(front, att, SIGMA, ["drift"])
+    assert att.evaluations["drift"]["test"]["significant"] and att.evaluations["drift"]["gap_within_noise"]
+    assert att.accepted == () and out["status"] == "nothing_missing" and out["verdict"] == []
+    assert out["baseline_gap"]["gap_to_noise"] <= 2.0
+
+
 def test_explained_when_the_named_effect_closes_the_gap():
     rate = 50e-9 / 60  # 50 nm/min: a plausible drift
     out, text = _diagnose(_record(rate=rate))

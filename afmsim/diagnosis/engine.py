@@ -6,7 +6,10 @@ candidates and its plots through the small :class:`Front` interface; the engine 
 1. greedy attribution (:func:`attribute`): every remaining candidate is added to the current
    model, fitted on the training part and scored on the held-out part; the significant one with
    the most negative ΔBIC is accepted (ties within ``Rules.tie_bic``: the first in canonical
-   order), repeated while one is significant (at most ``Rules.max_effects``);
+   order), repeated while one is significant (at most ``Rules.max_effects``) and while the current
+   model's held-out gap is above ``HONEST_FACTOR`` × the noise floor — once it is within, nothing
+   is missing by the standard of the status below, and a significant candidate is reported
+   (``gap_within_noise``) but not named;
 2. the significance test (:func:`significance`);
 3. plausibility: an accepted effect whose fitted parameter lies outside its physical range
    (:mod:`.plausible`) is *implausible* — it absorbs another mismatch and is not a finding; the
@@ -188,6 +191,10 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
                 entry["heldout_shrink_alone"] = entry["heldout_shrink"]
             evaluations[c] = {**evaluations.get(c, {}), **entry}
         passed = [c for c in trial if trial[c][2]["significant"]]
+        if passed and rms(cur_r) <= HONEST_FACTOR * sigma:
+            for c in passed:
+                evaluations[c]["gap_within_noise"] = True
+            break
         if not passed:
             break
         top = min(trial[c][2]["delta_bic"] for c in passed)
@@ -277,6 +284,8 @@ def effect_lines(effects: list[dict]) -> list[str]:
             notes += "  [IMPLAUSIBLE value]"
         elif e.get("finding") is False:
             notes += "  [not significant without the implausible terms]"
+        if e.get("gap_within_noise"):
+            notes += f"  [passes the test, but the gap was already within {HONEST_FACTOR:g}× the noise: not named]"
         lines.append(f"  {e['name']:<15} shrink {e['heldout_shrink']:+.1%}  ΔBIC {e['test']['delta_bic']:+.1f}  "
                      f"{'SIGNIFICANT' if e['significant'] else 'not significant'}  {_fmt(e['params'])}{notes}")
     return lines
