@@ -84,8 +84,9 @@ PLANTS = ("afmsim_preisach", *NULL_FAMILIES)
 #: Seeds the suite and the diagnosis were developed on.
 DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: Seeds scored once per frozen version and never developed on: 7001–7003 for the relay baseline of
-#: f0a2e4f and again for the resonant dynamics candidate (75110cc); 8001–8003 first for 75110cc.
-FRESH_SEEDS = (8001, 8002, 8003)
+#: f0a2e4f and again for the resonant dynamics candidate (75110cc); 8001–8003 first for 75110cc and
+#: again for the trained-states scoring (d004bf0); 9001–9003 first for d004bf0.
+FRESH_SEEDS = (9001, 9002, 9003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
