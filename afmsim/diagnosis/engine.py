@@ -6,10 +6,12 @@ candidates and its plots through the small :class:`Front` interface; the engine 
 1. greedy attribution (:func:`attribute`): every remaining candidate is added to the current
    model, fitted on the training part and scored on the held-out part; the significant one with
    the most negative ΔBIC is accepted (ties within ``Rules.tie_bic``: the first in canonical
-   order), repeated while one is significant (at most ``Rules.max_effects``) and while the current
-   model's held-out gap is above ``HONEST_FACTOR`` × the noise floor — once it is within, nothing
-   is missing by the standard of the status below, and a significant candidate is reported
-   (``gap_within_noise``) but not named;
+   order), repeated while one is significant (at most ``Rules.max_effects``). Once the current
+   model's held-out gap is within ``HONEST_FACTOR`` × the noise floor — nothing missing by the
+   standard of the status below — a candidate must also shrink it by ``Rules.min_step_near_noise``:
+   near the noise the test's relative criterion (15 % of a small excess) is met by terms that
+   absorb a sliver of the baseline's own misfit; one that passes the test but not this is reported
+   (``gap_within_noise``) and not named;
 2. the significance test (:func:`significance`);
 3. plausibility: an accepted effect whose fitted parameter lies outside its physical range
    (:mod:`.plausible`) is *implausible* — it absorbs another mismatch and is not a finding; the
@@ -96,6 +98,8 @@ class Rules:
 
     ``min_step``: the effect must shrink the current held-out RMS by at least this fraction;
     ``min_baseline_share``: ... and remove at least this share of the baseline's held-out mean square;
+    ``min_step_near_noise``: the RMS shrink an effect needs while the current gap is within
+    ``HONEST_FACTOR`` × the noise floor (the image front's practical size, :data:`.images.attribute.RULES`);
     ``tie_bic``: ΔBIC within this of the best is equal evidence (the earlier canonical name wins);
     ``redundant``: candidates whose :meth:`Front.redundancy` is below this are not fitted.
     """
@@ -103,6 +107,7 @@ class Rules:
     max_effects: int = 3
     min_step: float = 0.0
     min_baseline_share: float = 0.0
+    min_step_near_noise: float = 0.2
     tie_bic: float = 0.0
     redundant: float = 0.0
 
@@ -190,11 +195,12 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
             if round_no == 0:
                 entry["heldout_shrink_alone"] = entry["heldout_shrink"]
             evaluations[c] = {**evaluations.get(c, {}), **entry}
+        if rms(cur_r) <= HONEST_FACTOR * sigma:
+            for c, (_, _, test) in trial.items():
+                if test["significant"] and test["step_shrink"] < rules.min_step_near_noise:
+                    test["significant"] = False
+                    evaluations[c]["gap_within_noise"] = True
         passed = [c for c in trial if trial[c][2]["significant"]]
-        if passed and rms(cur_r) <= HONEST_FACTOR * sigma:
-            for c in passed:
-                evaluations[c]["gap_within_noise"] = True
-            break
         if not passed:
             break
         top = min(trial[c][2]["delta_bic"] for c in passed)
@@ -285,7 +291,7 @@ def effect_lines(effects: list[dict]) -> list[str]:
         elif e.get("finding") is False:
             notes += "  [not significant without the implausible terms]"
         if e.get("gap_within_noise"):
-            notes += f"  [passes the test, but the gap was already within {HONEST_FACTOR:g}× the noise: not named]"
+            notes += f"  [passes the test, but shrinks a gap already within {HONEST_FACTOR:g}× the noise too little to name]"
         lines.append(f"  {e['name']:<15} shrink {e['heldout_shrink']:+.1%}  ΔBIC {e['test']['delta_bic']:+.1f}  "
                      f"{'SIGNIFICANT' if e['significant'] else 'not significant'}  {_fmt(e['params'])}{notes}")
     return lines
