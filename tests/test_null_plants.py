@@ -56,8 +56,8 @@ def test_no_named_effect_explains_a_null(null_reports):
 
 
 @pytest.mark.xfail(strict=True, reason="issue 11.3 not met: the relay-grid baseline (curvature prior, grid size by inner "
-                                       "validation, held-out scoring in trained relay states) leaves 3.5x (Bouc-Wen), "
-                                       "15x (generalised PI) and 3.1x (scattered Preisach) the noise floor on fresh seed "
+                                       "validation, held-out scoring in trained relay states) leaves 5.0x (Bouc-Wen), "
+                                       "14x (generalised PI) and 3.8x (scattered Preisach) the noise floor on fresh seed "
                                        "2026 (see docs/diagnosis.md, 'Status and honesty')")
 def test_other_hysteresis_families_come_out_nothing_missing(null_reports):
     gaps = {family: rep["baseline"]["gap_to_noise"] for family, rep in null_reports.items()}
