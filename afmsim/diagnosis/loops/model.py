@@ -59,7 +59,7 @@ from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
 from ..engine import decorrelation_length
 
-__all__ = ["relay_features", "play_features", "solve_weights", "untrained_state", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
+__all__ = ["relay_features", "play_features", "solve_weights", "untrained_state", "in_trained_states", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
            "creep_gamma_from_bank", "resonance_filter", "resonance_band", "estimate_resonance", "CANDIDATES"]
 
 CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "asymmetry")
@@ -287,6 +287,12 @@ def untrained_state(relays: np.ndarray, fit: np.ndarray) -> np.ndarray:
     return np.linalg.norm(a - (a @ basis) @ basis.T, axis=1)
 
 
+def in_trained_states(relays: np.ndarray, fit: np.ndarray) -> np.ndarray:
+    """Samples whose relay state the samples ``fit`` determine (:func:`untrained_state` within
+    :data:`STATE_TOLERANCE`)."""
+    return untrained_state(relays, fit) <= STATE_TOLERANCE
+
+
 def clearly_better(residual, reference, n_blocks: int = LEVEL_BLOCKS) -> bool:
     """Does ``residual`` beat ``reference`` (paired, same samples) beyond chance? The samples are
     cut into ``n_blocks`` contiguous blocks; the mean over blocks of the drop in mean square must
@@ -335,7 +341,7 @@ class Design:
         relays are then scored too)."""
         held = ~self.train & self.in_range
         before = held & ~after_excursion(self.v, self.train)
-        trained = before & (untrained_state(self.hyst("preisach"), self.train) <= STATE_TOLERANCE)
+        trained = before & in_trained_states(self.hyst("preisach"), self.train)
         for rule, scored in (("trained_states", trained), ("before_excursion", before)):
             if scored.sum() >= MIN_SCORED:
                 return scored, rule
@@ -368,7 +374,7 @@ class Design:
         if check.sum() < MIN_SCORED or hi <= lo:
             return LEVEL_CHOICES[0]
         grids = {n: self.relays(n) for n in LEVEL_CHOICES}
-        trained = check & (untrained_state(grids[LEVEL_CHOICES[0]], inner) <= STATE_TOLERANCE)
+        trained = check & in_trained_states(grids[LEVEL_CHOICES[0]], inner)
         check = trained if trained.sum() >= MIN_SCORED else check  # as :meth:`scored` does
         best, best_residual = None, None
         for n, relays in grids.items():
