@@ -10,8 +10,9 @@ Protocol of :func:`diagnose_loops`:
    relays an excursion switched stay switched); where that leaves fewer than 50 samples, every
    in-range held-out sample is scored; the scored fraction and the rule are reported;
 2. baseline = rate-independent hysteresis (relay Preisach grid with its size chosen by inner
-   validation on the training part, or play operators with ``baseline="symmetric"``) + offset +
-   linear term, fitted on the training part;
+   validation on the training part, or the Bouc–Wen law where that inner validation finds it
+   clearly better; play operators with ``baseline="symmetric"``) + offset + linear term, fitted on
+   the training part;
 3. the held-out residual is localised (:func:`~afmsim.diagnosis.loops.localise.localise`);
 4. greedy attribution by the shared engine (:mod:`~afmsim.diagnosis.engine`): each remaining
    candidate is added to the current model, fitted on the training part, and scored on the
@@ -43,6 +44,8 @@ from .record import LoopRecord, load_record
 __all__ = ["diagnose_loops", "diagnose_record", "LoopFront"]
 
 TRAIN_FRACTION = 0.6
+BASELINE_NAMES = {"preisach": "relay Preisach grid (asymmetric)", "bouc_wen": "Bouc–Wen law (Duhem class)",
+                  "symmetric": "play operators (symmetric PI)"}
 RULES = Rules(max_effects=3)
 
 
@@ -93,13 +96,13 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
         raise ValueError(f"baseline must be 'preisach' or 'symmetric', got {baseline!r}")
     n = rec.n
     train = np.arange(n) < int(round(train_fraction * n))
-    d = Design(rec.t, rec.v, rec.x, rec.y, train)
+    d = Design(rec.t, rec.v, rec.x, rec.y, train, v_fine=rec.v_fine)
     held, scoring = d.scored()  # held-out samples beyond the trained voltage range are not scored
     if held.sum() < 50:
         raise ValueError(f"only {int(held.sum())} held-out samples lie inside the training voltage range; "
                          "the record's excitation must repeat its range after the first 60 %")
     modelled = tuple(m for m in modelled if m != "cross_coupling" or rec.y is not None)
-    front = LoopFront(rec, d, held, baseline)
+    front = LoopFront(rec, d, held, d.family if baseline == "preisach" else baseline)
     base = front.fit(modelled)
     r_base = front.residual(base)
     # white sensor noise from the training residual, as the image front does: second differences of
@@ -116,11 +119,12 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                    "heldout_from_s": float(rec.t[~train][0]),
                    "heldout_scored_fraction": round(float(held.sum() / (~train).sum()), 4), "has_cross_axis": rec.y is not None},
         "status": outcome["status"],
-        "baseline": {"model": "relay Preisach grid (asymmetric)" if baseline == "preisach" else
-                     "play operators (symmetric PI)", "rms_gap": rms(r_base[held]), "unit": "m",
+        "baseline": {"model": BASELINE_NAMES[front.kind], "family": front.kind,
+                     "rms_gap": rms(r_base[held]), "unit": "m",
                      "gap_to_noise": outcome["baseline_gap"]["gap_to_noise"],
                      "train_rms": rms(r_base[train]), "noise_floor": sigma,
-                     "relay_levels": d.n_levels if baseline == "preisach" else None,
+                     "relay_levels": d.n_levels if front.kind == "preisach" else None,
+                     "bouc_wen_shape": d.bouc_wen_shape.as_dict() if front.kind == "bouc_wen" else None,
                      "inner_rms_by_levels": {str(k): v for k, v in d.level_scores.items()},
                      "heldout_scoring": scoring,
                      "travel": float(np.ptp(rec.x)), "modelled": list(modelled)},

@@ -9,11 +9,15 @@ density their neighbours' trend continues to, not 0. It stays rate-independent (
 dynamics inside it). The grid size (its capacity) is chosen per record by inner validation on the
 training part (:meth:`Design.choose_levels`: fit on its first 3/4, score on its last 1/4, a larger
 grid of :data:`LEVEL_CHOICES` only when clearly better); the baseline and every candidate fit of the
-record share it. Held-out samples are scored inside the training voltage range, before the
+record share it. On the same inner split the *family* is chosen (:meth:`Design.choose_family`): the
+Bouc–Wen law (``kind="bouc_wen"``, :mod:`.bouc_wen`: Duhem class, no return-point memory, which no
+relay density fits) replaces the grid where it is clearly better, or as good while fitting the inner
+part as closely. Held-out samples are scored inside the training voltage range, before the
 first held-out excursion beyond it, and in relay states that the training part determines
 (:meth:`Design.scored`, :func:`untrained_state`). ``kind="symmetric"`` uses play
 operators instead (a Prandtl–Ishlinskii model, centrally symmetric loops, ridge :data:`RIDGE`);
-only then is the ``asymmetry`` candidate offered.
+only then is the ``asymmetry`` candidate offered. A block-mean decimated record's hysteresis
+features are computed from the full-rate voltage and block-averaged (``Design(v_fine=...)``).
 
 Measured on null records (no added effect; held-out RMS gap / noise floor): other hysteresis
 families (:mod:`.null_plants`, development seeds 100–103) and afmsim's own plant
@@ -58,6 +62,7 @@ from scipy.linalg import solve_triangular
 from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
 from ..engine import decorrelation_length
+from .bouc_wen import backbone_columns, bouc_wen_state, fit_bouc_wen_shape
 
 __all__ = ["relay_features", "play_features", "solve_weights", "untrained_state", "in_trained_states", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
            "creep_gamma_from_bank", "resonance_filter", "resonance_band", "estimate_resonance", "CANDIDATES"]
@@ -68,6 +73,8 @@ CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "asymmetry")
 #: 32 levels as a third choice made a dynamics record's diagnosis 3× slower (49 s instead of 17 s;
 #: the NNLS grows with the n(n+1)/2 relays) without smaller held-out gaps on the development nulls.
 LEVEL_CHOICES = (16, 24)
+#: Hysteresis families of the rate-independent baseline (:meth:`Design.choose_family`).
+FAMILIES = ("preisach", "bouc_wen")
 N_LEVELS = LEVEL_CHOICES[0]
 #: Inner split: the first 3/4 of the training part fit, its last 1/4 scores.
 INNER_FRACTION = 0.75
@@ -99,10 +106,12 @@ STATE_TOLERANCE = 0.5
 
 
 @njit(cache=True, nogil=True)
-def _relay_kernel(u, n, out):  # pragma: no cover - compiled
-    """Smoothed relays (i ≥ j) on normalised input u ∈ [0, n]: s ← min(max(s, r(u − i)), r(u − j))."""
+def _relay_kernel(u, n, block, out):  # pragma: no cover - compiled
+    """Smoothed relays (i ≥ j) on normalised input u ∈ [0, n]: s ← min(max(s, r(u − i)), r(u − j)),
+    averaged over consecutive blocks of ``block`` samples into the rows of ``out`` (zeroed)."""
     k = 0
-    m = u.shape[0]
+    m = out.shape[0] * block
+    w = 1.0 / block
     for i in range(n):
         for j in range(i + 1):
             lo0 = min(max(u[0] - i, 0.0), 1.0)
@@ -114,15 +123,17 @@ def _relay_kernel(u, n, out):  # pragma: no cover - compiled
                     s = lo
                 if s > hi:
                     s = hi
-                out[t, k] = s
+                out[t // block, k] += w * s
             k += 1
 
 
-def relay_features(v, v_lo, v_hi, n_levels=N_LEVELS) -> np.ndarray:
-    """Relay states (M, n(n+1)/2) on a grid of ``n_levels`` over [v_lo, v_hi]."""
+def relay_features(v, v_lo, v_hi, n_levels=N_LEVELS, block: int = 1) -> np.ndarray:
+    """Relay states (M, n(n+1)/2) on a grid of ``n_levels`` over [v_lo, v_hi]; with ``block`` > 1,
+    the means of the states over consecutive blocks of that many samples of ``v`` (M = len(v) // block):
+    what a block-mean decimated record of a relay sum shows (the relays switch at the full rate)."""
     u = (np.asarray(v, dtype=np.float64) - v_lo) / (v_hi - v_lo) * n_levels
-    out = np.empty((u.size, n_levels * (n_levels + 1) // 2))
-    _relay_kernel(np.ascontiguousarray(u), n_levels, out)
+    out = np.zeros((u.size // block, n_levels * (n_levels + 1) // 2))
+    _relay_kernel(np.ascontiguousarray(u), n_levels, int(block), out)
     return out
 
 
@@ -146,14 +157,17 @@ def relay_curvature(n_levels: int) -> np.ndarray:
     return out
 
 
-def play_features(v, v_lo, v_hi, n_play=N_PLAY) -> np.ndarray:
-    """Play operators (half-widths k/n · range/2) on the centred normalised voltage."""
+def play_features(v, v_lo, v_hi, n_play=N_PLAY, block: int = 1) -> np.ndarray:
+    """Play operators (half-widths k/n · range/2) on the centred normalised voltage; with ``block``
+    > 1, their means over consecutive blocks of that many samples (as :func:`relay_features`)."""
     from afmsim.hysteresis import play
 
     c = 0.5 * (v_lo + v_hi)
     u = (np.asarray(v, dtype=np.float64) - c) / (v_hi - v_lo)
     widths = np.arange(1, n_play + 1) / n_play * 0.5
-    return play(u, widths, h0=u[0])
+    out = play(u, widths, h0=u[0])
+    m = u.size // block
+    return out[: m * block].reshape(m, block, -1).mean(axis=1)
 
 
 def lag_filter(tau: float, dt: float):
@@ -235,7 +249,7 @@ def creep_gamma_from_bank(c, taus, t1, t2) -> float:
 
 @dataclass(frozen=True)
 class ModelSpec:
-    kind: str = "preisach"  # "preisach" | "symmetric"
+    kind: str = "preisach"  # "preisach" | "bouc_wen" | "symmetric"
     effects: tuple[str, ...] = ()
 
 
@@ -248,7 +262,8 @@ class FittedModel:
     hysteresis: np.ndarray | None = None
 
 
-def after_excursion(v, train: np.ndarray, tolerance: float = RANGE_TOLERANCE, *, until_wiped: bool = False) -> np.ndarray:
+def after_excursion(v, train: np.ndarray, tolerance: float = RANGE_TOLERANCE, *, until_wiped: bool = False,
+                    v_min=None, v_max=None) -> np.ndarray:
     """True from the first sample after ``train`` whose voltage leaves the training range (by more
     than ``tolerance`` of it) to the end of the record — or, with ``until_wiped``, only until the
     voltage next reaches the opposite end of the range.
@@ -256,18 +271,22 @@ def after_excursion(v, train: np.ndarray, tolerance: float = RANGE_TOLERANCE, *,
     Such an excursion switches relays (thresholds beyond the range) that no training sample moved.
     Reaching the opposite end switches back every one of them whose other threshold lies inside the
     range; those whose other threshold lies beyond it too stay switched (a Preisach plane wider than
-    the drive), so only the strict form leaves no output that depends on untrained weights."""
+    the drive), so only the strict form leaves no output that depends on untrained weights.
+    ``v_min``/``v_max``: the lowest/highest voltage within each sample (block extremes of a
+    decimated record; default ``v``)."""
     v = np.asarray(v, dtype=np.float64)
-    lo, hi = float(v[train].min()), float(v[train].max())
+    lows = v if v_min is None else np.asarray(v_min, dtype=np.float64)
+    highs = v if v_max is None else np.asarray(v_max, dtype=np.float64)
+    lo, hi = float(lows[train].min()), float(highs[train].max())
     tol = tolerance * (hi - lo)
     out = np.zeros(v.size, dtype=bool)
     state = 0  # +1 / −1: an excursion above / below the range is remembered
     for k in range(int(np.flatnonzero(train).max()) + 1, v.size):
-        if v[k] > hi + tol:
+        if highs[k] > hi + tol:
             state = 1
-        elif v[k] < lo - tol:
+        elif lows[k] < lo - tol:
             state = -1
-        elif until_wiped and ((state == 1 and v[k] <= lo + tol) or (state == -1 and v[k] >= hi - tol)):
+        elif until_wiped and ((state == 1 and lows[k] <= lo + tol) or (state == -1 and highs[k] >= hi - tol)):
             state = 0
         out[k] = state != 0
     return out
@@ -306,28 +325,43 @@ class Design:
     """Feature matrices of one record, computed once and reused by every candidate fit.
 
     ``n_levels``: size of the relay grid; ``None`` chooses it by inner validation on the training
-    part (:meth:`choose_levels`), so the baseline and every candidate fit of the record share it."""
+    part (:meth:`choose_levels`), so the baseline and every candidate fit of the record share it.
+    ``v_fine``: the full-rate voltage of a block-mean decimated record (``LoopRecord.v_fine``; a whole
+    number of samples per sample of ``v``): the hysteresis features are then computed at the full
+    rate and block-averaged, as the record's x was — driving them with the averaged voltage misses
+    every turning point's peak (a 5 Hz triangle decimated 3× lost up to 400 nm, 8× the noise)."""
 
-    def __init__(self, t, v, x, y, train: np.ndarray, n_levels: int | None = None):
+    def __init__(self, t, v, x, y, train: np.ndarray, n_levels: int | None = None, v_fine=None,
+                 family: str | None = None):
         self.t, self.v, self.x, self.y, self.train = t, v, x, y, train
         self.dt = float((t[-1] - t[0]) / (t.size - 1))
+        self.block = 1 if v_fine is None else int(np.asarray(v_fine).size // v.size)
+        fine = np.asarray(v if v_fine is None else v_fine, dtype=np.float64)[: v.size * self.block]
+        blocks = fine.reshape(v.size, self.block)
+        self.v_min, self.v_max = blocks.min(axis=1), blocks.max(axis=1)  # voltage extremes within each sample
         # the hysteresis grid spans the *training* voltage range: relays that only the held-out
         # part could switch would have untrained weights; held-out voltages are clipped to it
-        lo, hi = float(v[train].min()), float(v[train].max())
+        lo, hi = float(self.v_min[train].min()), float(self.v_max[train].max())
         if hi <= lo:
             raise ValueError("the drive voltage is constant over the training part of the record")
         pad = 1e-6 * (hi - lo)
         self.v_lo, self.v_hi = lo - pad, hi + pad
-        self.vc = np.clip(v, self.v_lo, self.v_hi)
+        self.fine = fine
+        self.vc = np.clip(fine, self.v_lo, self.v_hi)  # full rate
         tol = RANGE_TOLERANCE * (hi - lo)
-        self.in_range = (v >= lo - tol) & (v <= hi + tol)
+        self.in_range = (self.v_min >= lo - tol) & (self.v_max <= hi + tol)
         vn = (v - 0.5 * (lo + hi)) / (hi - lo)
         self.free = np.column_stack([np.ones_like(v), vn])
         self._hyst = {}
         self.span_train = float(t[train].max() - t[0])
         self.x_scale = float(np.std(x)) or 1.0
         self.level_scores: dict = {}
+        self._inner = None  # inner fit mask, inner check mask, best grid's residual there, its inner-fit RMS
+        self.bouc_wen_shape = None
         self.n_levels = int(n_levels) if n_levels is not None else self.choose_levels()
+        if family is not None and family not in FAMILIES:
+            raise ValueError(f"family must be one of {FAMILIES}, got {family!r}")
+        self.family = family or (self.choose_family() if n_levels is None else "preisach")
 
     def scored(self) -> tuple[np.ndarray, str]:
         """Held-out samples that count for the gap, and the rule that chose them (the first that
@@ -340,12 +374,12 @@ class Design:
         ``"in_range"``: every held-out sample inside the range (outputs that depend on untrained
         relays are then scored too)."""
         held = ~self.train & self.in_range
-        before = held & ~after_excursion(self.v, self.train)
+        before = held & ~after_excursion(self.v, self.train, v_min=self.v_min, v_max=self.v_max)
         trained = before & in_trained_states(self.hyst("preisach"), self.train)
         for rule, scored in (("trained_states", trained), ("before_excursion", before)):
             if scored.sum() >= MIN_SCORED:
                 return scored, rule
-        scored = held & ~after_excursion(self.v, self.train, until_wiped=True)
+        scored = held & ~after_excursion(self.v, self.train, until_wiped=True, v_min=self.v_min, v_max=self.v_max)
         if scored.sum() >= MIN_SCORED:
             return scored, "between_excursions"
         return held, "in_range"
@@ -355,41 +389,91 @@ class Design:
         whose down-threshold no recorded voltage reaches (once on, never off: the Preisach plane
         extends beyond the drive)."""
         pad = (self.v_hi - self.v_lo) / n_levels
-        return relay_features(self.vc, self.v_lo - pad, self.v_hi, n_levels + 1)
+        return relay_features(self.vc, self.v_lo - pad, self.v_hi, n_levels + 1, self.block)
 
     def choose_levels(self) -> int:
         """Relay-grid size by inner validation: the baseline is fitted on the first
         :data:`INNER_FRACTION` of the training part and scored on the rest of it (samples inside the
-        inner fit's voltage range, before any excursion beyond it). A larger grid of
+        inner fit's voltage range whose relay state the inner fit determines; else, as
+        :meth:`scored` falls back, those before any excursion beyond that range, those between
+        excursions, all of them). A larger grid of
         :data:`LEVEL_CHOICES` replaces the one chosen so far only when it is clearly better there
         (:func:`clearly_better`); the held-out part is never looked at. ``level_scores``: inner RMS
         error (m) per grid."""
         idx = np.flatnonzero(self.train)
         inner = np.zeros(self.t.size, dtype=bool)
         inner[idx[: int(round(INNER_FRACTION * idx.size))]] = True
-        v = self.v
-        lo, hi = float(v[inner].min()), float(v[inner].max())
-        tol = RANGE_TOLERANCE * (hi - lo)
-        check = self.train & ~inner & (v >= lo - tol) & (v <= hi + tol) & ~after_excursion(v, inner)
-        if check.sum() < MIN_SCORED or hi <= lo:
+        lows, highs = self.v_min, self.v_max
+        lo, hi = float(lows[inner].min()), float(highs[inner].max())
+        if hi <= lo:
             return LEVEL_CHOICES[0]
+        tol = RANGE_TOLERANCE * (hi - lo)
+        in_inner_range = self.train & ~inner & (lows >= lo - tol) & (highs <= hi + tol)
         grids = {n: self.relays(n) for n in LEVEL_CHOICES}
-        trained = check & in_trained_states(grids[LEVEL_CHOICES[0]], inner)
-        check = trained if trained.sum() >= MIN_SCORED else check  # as :meth:`scored` does
+        # the grids span the whole training range, so a relay that an excursion beyond the inner
+        # range left switched shows in the state: trained states need no 'before any excursion'
+        # then the rules of :meth:`scored` in turn, the first that leaves MIN_SCORED samples
+        for check in (in_inner_range & in_trained_states(grids[LEVEL_CHOICES[0]], inner),
+                      in_inner_range & ~after_excursion(self.v, inner, v_min=lows, v_max=highs),
+                      in_inner_range & ~after_excursion(self.v, inner, until_wiped=True, v_min=lows, v_max=highs),
+                      in_inner_range):
+            if check.sum() >= MIN_SCORED:
+                break
+        else:
+            self._hyst["preisach"] = grids[LEVEL_CHOICES[0]]
+            return LEVEL_CHOICES[0]
         best, best_residual = None, None
         for n, relays in grids.items():
             wf, wp = solve_weights(self.free, relays, self.x, inner, smooth=relay_curvature(n + 1))
-            residual = (self.free @ wf + relays @ wp - self.x)[check]
+            error = self.free @ wf + relays @ wp - self.x
+            residual = error[check]
             self.level_scores[n] = float(np.sqrt(np.mean(residual**2)))
             if best is None or clearly_better(residual, best_residual):
-                best, best_residual = n, residual
+                best, best_residual, best_fit_rms = n, residual, float(np.sqrt(np.mean(error[inner] ** 2)))
                 self._hyst["preisach"] = relays
+        self._inner = (inner, check, best_residual, best_fit_rms)
         return best
 
+    def normalised_voltage(self) -> np.ndarray:
+        """The full-rate voltage normalised so that the training range is [0, 1]. Not clipped: the
+        Bouc–Wen state has no return-point memory, so a held-out sample just beyond the range
+        leaves a lasting mark on it (the relays are clipped instead: beyond the range they have
+        no trained weight)."""
+        return (self.fine - self.v_lo) / (self.v_hi - self.v_lo)
+
+    def choose_family(self) -> str:
+        """Hysteresis family of the baseline: the relay grid (``"preisach"``), or the Bouc–Wen law
+        (``"bouc_wen"``, :mod:`.bouc_wen`) fitted on the same inner part of the training record, when
+        on the same inner check samples it is clearly better (:func:`clearly_better`), or at least
+        as good while it also fits the inner part as closely as the grid does (8 parameters against
+        the grid's hundreds: the simpler law explains the record as well). The held-out part is
+        never looked at; ``level_scores["bouc_wen"]``: its inner RMS error (m)."""
+        if self._inner is None:
+            return "preisach"
+        inner, check, grid_residual, grid_fit_rms = self._inner
+        u = self.normalised_voltage()
+        shape, fit_rms = fit_bouc_wen_shape(u, self.block, self.free, self.x, inner)
+        cols = np.hstack([self.free, backbone_columns(self.free), bouc_wen_state(u, shape, self.block)[:, None]])
+        w, *_ = np.linalg.lstsq(cols[inner], self.x[inner], rcond=None)
+        residual = (cols @ w - self.x)[check]
+        self.level_scores["bouc_wen"] = float(np.sqrt(np.mean(residual**2)))
+        as_good = np.mean(residual**2) <= np.mean(grid_residual**2) and fit_rms <= grid_fit_rms
+        return "bouc_wen" if clearly_better(residual, grid_residual) or as_good else "preisach"
+
     def hyst(self, kind: str) -> np.ndarray:
+        """Hysteresis columns of ``kind``: relay states (``"preisach"``), play operators
+        (``"symmetric"``), or the backbone u'², u'³ and the state h of the Bouc–Wen law whose shape
+        is fitted on the training part (``"bouc_wen"``; the shape is kept in ``bouc_wen_shape``)."""
         if kind not in self._hyst:
-            self._hyst[kind] = self.relays(self.n_levels) if kind == "preisach" else \
-                play_features(self.vc, self.v_lo, self.v_hi)
+            if kind == "preisach":
+                self._hyst[kind] = self.relays(self.n_levels)
+            elif kind == "bouc_wen":
+                u = self.normalised_voltage()
+                self.bouc_wen_shape, _ = fit_bouc_wen_shape(u, self.block, self.free, self.x, self.train)
+                self._hyst[kind] = np.column_stack([backbone_columns(self.free),
+                                                    bouc_wen_state(u, self.bouc_wen_shape, self.block)])
+            else:
+                self._hyst[kind] = play_features(self.vc, self.v_lo, self.v_hi, block=self.block)
         return self._hyst[kind]
 
 
@@ -460,11 +544,16 @@ def estimate_resonance(x, prediction, train, dt) -> tuple[float, float] | None:
 def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
     """Fit ``spec`` on the training mask of ``d``; the prediction covers the whole record."""
     eff = set(spec.effects)
-    kind = "preisach" if spec.kind == "preisach" else "symmetric"
+    if spec.kind not in (*FAMILIES, "symmetric"):
+        raise ValueError(f"model kind must be one of {(*FAMILIES, 'symmetric')}, got {spec.kind!r}")
+    kind = spec.kind
     hf = d.hyst(kind)
     smooth = relay_curvature(d.n_levels + 1) if kind == "preisach" else None
-    hyst_cols = np.hstack([d.free, hf])  # free offset+linear, then non-negative hysteresis weights
-    n_free_h = d.free.shape[1]
+    # free offset + linear, then the non-negative hysteresis weights (relays, plays); the Bouc–Wen
+    # backbone and state weights are free (their signs are the law's, not a density's)
+    hyst_cols = np.hstack([d.free, hf])
+    n_free_h = d.free.shape[1] + (hf.shape[1] if kind == "bouc_wen" else 0)
+    n_pos_h = hyst_cols.shape[1] - n_free_h
     extra = []
     names = []
     if "drift" in eff:
@@ -481,7 +570,7 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
         names.append("cross_coupling")
     extra = np.column_stack(extra) if extra else np.empty((d.t.size, 0))
     params: dict = {}
-    n_params = hyst_cols.shape[1] + extra.shape[1]
+    n_params = hyst_cols.shape[1] + extra.shape[1] + (3 if kind == "bouc_wen" else 0)  # + β, γ, n
 
     def run(lag, creep_basis=None):
         cols = hyst_cols
@@ -497,7 +586,7 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
         pos = cols[:, n_free_h:]
         wf, wp = solve_weights(free, pos, d.x, d.train, smooth=smooth)
         pred = free @ wf + pos @ wp
-        hyst_part = hyst_cols[:, :n_free_h] @ wf[:n_free_h] + hyst_cols[:, n_free_h:] @ wp[: hf.shape[1]]
+        hyst_part = hyst_cols[:, :n_free_h] @ wf[:n_free_h] + hyst_cols[:, n_free_h:] @ wp[:n_pos_h]
         return pred, wf, wp, hyst_part
 
     def creep_cols(hpart, taus):
@@ -511,7 +600,7 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
             for _ in range(3):
                 basis = creep_cols(hpart, taus)
                 pred, wf, wp, hpart_new = run(lag, basis)
-                c = wp[hf.shape[1]:]
+                c = wp[n_pos_h:]
                 hpart = hpart_new
             creep = (c, taus)
         return pred, wf, wp, hpart, creep

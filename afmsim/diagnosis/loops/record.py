@@ -4,7 +4,10 @@ Every problem with the input raises :class:`ValueError` with one line that names
 that are not exactly uniformly sampled (jitter ≤ 1 % of the median interval) are accepted as is
 (the median interval is used by the linear filters); larger irregularity is resampled onto a
 uniform grid by linear interpolation. Long records are decimated by block means to at most
-:data:`MAX_SAMPLES` samples (this also averages sensor noise); the factor is reported.
+:data:`MAX_SAMPLES` samples (this also averages sensor noise); the factor is reported, and the
+full-rate voltage is kept (``v_fine``): a block mean of the drive lies below a turning point's peak,
+so a hysteresis model must see the fine voltage and be block-averaged itself
+(:class:`~afmsim.diagnosis.loops.model.Design`), not be driven by the averaged voltage.
 """
 
 from __future__ import annotations
@@ -23,7 +26,10 @@ REQUIRED = ("t_s", "v_V", "x_m")
 
 @dataclass(frozen=True)
 class LoopRecord:
-    """A validated, uniformly sampled record (SI units). ``y`` is None without a ``y_m`` column."""
+    """A validated, uniformly sampled record (SI units). ``y`` is None without a ``y_m`` column.
+
+    ``decimation`` > 1: every sample is the mean of that many uniform full-rate samples, and
+    ``v_fine`` holds the full-rate voltage (``decimation × n`` samples; None when not decimated)."""
 
     t: np.ndarray
     v: np.ndarray
@@ -31,6 +37,7 @@ class LoopRecord:
     y: np.ndarray | None
     decimation: int = 1
     source: str = "arrays"
+    v_fine: np.ndarray | None = None
 
     @property
     def dt(self) -> float:
@@ -123,10 +130,13 @@ def load_record(source, *, max_samples: int = MAX_SAMPLES) -> LoopRecord:
     else:
         t = t[0] + med * np.arange(t.size)
     k = int(np.ceil(t.size / max_samples))
+    v_fine = None
     if k > 1:
         m = t.size // k
         blk = lambda a: a[: m * k].reshape(m, k).mean(axis=1)  # noqa: E731
+        v_fine = np.ascontiguousarray(v[: m * k])
         t, v, x = blk(t), blk(v), blk(x)
         y = None if y is None else blk(y)
     return LoopRecord(t=np.ascontiguousarray(t), v=np.ascontiguousarray(v), x=np.ascontiguousarray(x),
-                      y=None if y is None else np.ascontiguousarray(y), decimation=k if k > 1 else 1, source=label)
+                      y=None if y is None else np.ascontiguousarray(y), decimation=k if k > 1 else 1, source=label,
+                      v_fine=v_fine)
