@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from afmsim.diagnosis.loops.attribute import noise_floor
+from afmsim.diagnosis.engine import noise_floor
 from afmsim.diagnosis.loops.minor_loop import interior_reversals, minor_loop_excitation, minor_loop_law
 from afmsim.diagnosis.loops.record import load_record
 

@@ -17,7 +17,8 @@ Protocol of :func:`diagnose_loops`:
 4. greedy attribution by the shared engine (:mod:`~afmsim.diagnosis.engine`): each remaining
    candidate is added to the current model, fitted on the training part, and scored on the
    held-out part; the best significant one (:func:`~afmsim.diagnosis.engine.significance`, σ from
-   second differences of the record) is added, repeated while one is significant (at most 3
+   second differences of the baseline's training residual where the drive moves least,
+   :meth:`~afmsim.diagnosis.loops.model.Design.noise_floor`) is added, repeated while one is significant (at most 3
    effects). ``heldout_shrink`` of an effect is the shrink of the model it was last tried in
    (``added_to`` lists the effects that model already had); ``heldout_shrink_alone`` is baseline +
    that effect only;
@@ -34,7 +35,7 @@ import numpy as np
 
 from afmsim.reproducible import single_blas_thread
 
-from ..engine import Front, Rules, attribute, conclude, effect_lines, noise_floor, ratio_text, rms, verdict_text
+from ..engine import Front, Rules, attribute, conclude, effect_lines, ratio_text, rms, verdict_text
 from .localise import localise
 from .coupling import coupling_output, coupling_text
 from .minor_loop import minor_loop_law
@@ -105,11 +106,10 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
     front = LoopFront(rec, d, held, d.family if baseline == "preisach" else baseline)
     base = front.fit(modelled)
     r_base = front.residual(base)
-    # white sensor noise from the training residual, as the image front does: second differences of
-    # the record itself also count the loop's own curvature at the sample scale (fast drives, low
-    # sample rates, sharp relays), which overstated σ by > 1.5× on 23 of 102 development records
-    # (19 with the residual: a sharp relay's jump or a resonance is signal at that scale too)
-    sigma = noise_floor(r_base[train])
+    # white sensor noise from the training residual where the drive moves least (Design.noise_floor):
+    # the record's own second differences also count the loop's curvature at the sample scale, and
+    # the residual's, where the drive moves, a sharp relay's jump
+    sigma = d.noise_floor(r_base)
     avail = [c for c in (list(candidates) if candidates is not None else _available(rec, baseline)) if c not in modelled]
     att = attribute(front, avail, sigma, modelled=modelled, rules=RULES, baseline=base)
     outcome = conclude(front, att, sigma, avail, rules=RULES)
