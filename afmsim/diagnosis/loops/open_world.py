@@ -87,8 +87,9 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: f0a2e4f and again for the resonant dynamics candidate (75110cc); 8001–8003 first for 75110cc and
 #: again for the trained-states scoring (d004bf0); 9001–9003 first for d004bf0; 10001–10003 first for
 #: the near-noise practical size and the residual noise floor (5de4b49); 11001–11003 first for the
-#: full-rate features of decimated records and the Bouc–Wen baseline family (2f3cc21).
-FRESH_SEEDS = (11001, 11002, 11003)
+#: full-rate features of decimated records and the Bouc–Wen baseline family (2f3cc21); 12001–12003
+#: first for the noise floor where the drive moves least (the commit after 2f3cc21's figures).
+FRESH_SEEDS = (12001, 12002, 12003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
