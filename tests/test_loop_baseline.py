@@ -10,6 +10,7 @@ from afmsim.diagnosis.loops.attribute import diagnose_record
 from afmsim.diagnosis.loops.model import (LEVEL_CHOICES, Design, ModelSpec, after_excursion, fit_model, relay_curvature,
                                           relay_features)
 from afmsim.diagnosis.loops.null_plants import _relay_sum, null_plant
+from afmsim.diagnosis.loops.open_world import case_plan, make_case
 from afmsim.diagnosis.loops.record import load_record
 from afmsim.diagnosis.loops.validation import excitation
 from afmsim.stage import AsymmetricPreisach
@@ -189,3 +190,15 @@ def test_the_noise_floor_comes_from_where_the_drive_moves_least(seed):
     true = 8e-9 / np.sqrt(rec.decimation)
     assert noise_floor(residual[train]) > 2.0 * true
     assert 0.8 * true < d.noise_floor(residual) < 1.25 * true
+
+
+def test_where_the_inner_check_cannot_tell_the_families_apart_the_simpler_law_that_fits_is_taken():
+    """A Bouc–Wen stage under steps (open-world development seed 1, case 25): on the inner check the
+    grid and the law tie, and the grid, taken before, left 55× the noise on the held-out part; the
+    law, which fits the inner part as closely with 8 parameters, is within 2×."""
+    spec = case_plan()[25]
+    assert spec.category == "null" and spec.plant == "bouc_wen"
+    case = make_case(spec, np.random.default_rng([1, 25]))
+    rep = diagnose_record(load_record(case["columns"]), candidates=[])[0]
+    assert rep["baseline"]["family"] == "bouc_wen"
+    assert rep["baseline"]["gap_to_noise"] <= 2.0

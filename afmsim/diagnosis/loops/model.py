@@ -469,10 +469,11 @@ class Design:
     def choose_family(self) -> str:
         """Hysteresis family of the baseline: the relay grid (``"preisach"``), or the Bouc–Wen law
         (``"bouc_wen"``, :mod:`.bouc_wen`) fitted on the same inner part of the training record, when
-        on the same inner check samples it is clearly better (:func:`clearly_better`), or at least
-        as good while it also fits the inner part as closely as the grid does (8 parameters against
-        the grid's hundreds: the simpler law explains the record as well). The held-out part is
-        never looked at; ``level_scores["bouc_wen"]``: its inner RMS error (m)."""
+        on the same inner check samples it is clearly better (:func:`clearly_better`), or not
+        clearly worse while it also fits the inner part as closely as the grid does (8 parameters
+        against the grid's hundreds: where the check cannot tell them apart, the simpler law that
+        explains the record as well is taken). The held-out part is never looked at;
+        ``level_scores["bouc_wen"]``: its inner RMS error (m)."""
         if self._inner is None:
             return "preisach"
         inner, check, grid_residual, grid_fit_rms = self._inner
@@ -482,7 +483,7 @@ class Design:
         w, *_ = np.linalg.lstsq(cols[inner], self.x[inner], rcond=None)
         residual = (cols @ w - self.x)[check]
         self.level_scores["bouc_wen"] = float(np.sqrt(np.mean(residual**2)))
-        as_good = np.mean(residual**2) <= np.mean(grid_residual**2) and fit_rms <= grid_fit_rms
+        as_good = not clearly_better(grid_residual, residual) and fit_rms <= grid_fit_rms
         return "bouc_wen" if clearly_better(residual, grid_residual) or as_good else "preisach"
 
     def hyst(self, kind: str) -> np.ndarray:
