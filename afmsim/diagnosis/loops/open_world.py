@@ -88,8 +88,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: again for the trained-states scoring (d004bf0); 9001–9003 first for d004bf0; 10001–10003 first for
 #: the near-noise practical size and the residual noise floor (5de4b49); 11001–11003 first for the
 #: full-rate features of decimated records and the Bouc–Wen baseline family (2f3cc21); 12001–12003
-#: first for the noise floor where the drive moves least (the commit after 2f3cc21's figures).
-FRESH_SEEDS = (12001, 12002, 12003)
+#: first for the noise floor where the drive moves least (a37c9db); 13001–13003 first for the family
+#: choice that takes the Bouc–Wen law on inner ties (the commit after a37c9db's figures, prompted by
+#: two 12001–12003 records).
+FRESH_SEEDS = (13001, 13002, 13003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
