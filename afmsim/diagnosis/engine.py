@@ -52,7 +52,12 @@ def rms(a) -> float:
 
 def noise_floor(x) -> float:
     """Robust white-noise σ of x from its second differences (σ_Δ² = √6·σ)."""
-    d2 = np.diff(np.asarray(x, dtype=float), 2)
+    return sigma_from_second_differences(np.diff(np.asarray(x, dtype=float), 2))
+
+
+def sigma_from_second_differences(d2) -> float:
+    """Robust white-noise σ from second differences ``d2`` of a white series (MAD; σ_Δ² = √6·σ)."""
+    d2 = np.asarray(d2, dtype=float)
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 

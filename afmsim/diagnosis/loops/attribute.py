@@ -10,8 +10,8 @@ Protocol of :func:`diagnose_loops`:
    relays an excursion switched stay switched); where that leaves fewer than 50 samples, every
    in-range held-out sample is scored; the scored fraction and the rule are reported;
 2. baseline = rate-independent hysteresis (relay Preisach grid with its size chosen by inner
-   validation on the training part, or the Bouc–Wen law where that inner validation finds it
-   clearly better; play operators with ``baseline="symmetric"``) + offset + linear term, fitted on
+   validation on the training part, or the Bouc–Wen law where that inner validation prefers it
+   (:meth:`~afmsim.diagnosis.loops.model.Design.choose_family`); play operators with ``baseline="symmetric"``) + offset + linear term, fitted on
    the training part;
 3. the held-out residual is localised (:func:`~afmsim.diagnosis.loops.localise.localise`);
 4. greedy attribution by the shared engine (:mod:`~afmsim.diagnosis.engine`): each remaining

@@ -16,7 +16,8 @@ minimises the training error (a coarse grid, then Nelder–Mead). A decimated re
 integrated on the full-rate voltage and block-averaged, as the relay features are.
 
 :meth:`afmsim.diagnosis.loops.model.Design.choose_family` takes this family instead of the grid
-only when it is clearly better on the inner validation part of the training record.
+when, on the inner validation part of the training record, it is clearly better, or not clearly
+worse while fitting the inner fit part as closely.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import minimize
 
-__all__ = ["BoucWenShape", "bouc_wen_state", "fit_bouc_wen_shape", "backbone_columns"]
+__all__ = ["BoucWenShape", "bouc_wen_state", "bouc_wen_columns", "fit_bouc_wen_shape", "backbone_columns"]
 
 #: Integration: the linearised trapezoidal rule (second order, and stable for any β > |γ| and n:
 #: the state's own decay is taken half implicitly, so the step's divisor is ≥ 1), at least
@@ -91,16 +92,21 @@ def backbone_columns(free: np.ndarray) -> np.ndarray:
     return np.column_stack([u**2, u**3])
 
 
+def bouc_wen_columns(u, shape: BoucWenShape, block: int, free: np.ndarray) -> np.ndarray:
+    """The law's hysteresis columns [u'², u'³, h] (the weights of the design's ``free`` [1, u'] come
+    on top); ``u`` the normalised full-rate voltage."""
+    return np.column_stack([backbone_columns(free), bouc_wen_state(u, shape, block)])
+
+
 def fit_bouc_wen_shape(u, block: int, free: np.ndarray, x: np.ndarray, mask: np.ndarray) -> tuple[BoucWenShape, float]:
     """Shape minimising the RMS training error on ``mask`` of ``x ≈ [free, backbone, h]·w``
     (w by least squares); returns ``(shape, rms error [m])``."""
-    cols_fixed = np.hstack([free, backbone_columns(free)])
 
     def error(theta) -> float:
-        h = bouc_wen_state(u, BoucWenShape.from_theta(theta), block)
-        if not np.all(np.isfinite(h)):
+        cols = bouc_wen_columns(u, BoucWenShape.from_theta(theta), block, free)
+        if not np.all(np.isfinite(cols)):
             return float("inf")
-        a = np.column_stack([cols_fixed, h])[mask]
+        a = np.hstack([free, cols])[mask]
         w, *_ = np.linalg.lstsq(a, x[mask], rcond=None)
         return float(np.mean((a @ w - x[mask]) ** 2))
 

@@ -11,8 +11,8 @@ training part (:meth:`Design.choose_levels`: fit on its first 3/4, score on its 
 grid of :data:`LEVEL_CHOICES` only when clearly better); the baseline and every candidate fit of the
 record share it. On the same inner split the *family* is chosen (:meth:`Design.choose_family`): the
 Bouc–Wen law (``kind="bouc_wen"``, :mod:`.bouc_wen`: Duhem class, no return-point memory, which no
-relay density fits) replaces the grid where it is clearly better, or as good while fitting the inner
-part as closely. Held-out samples are scored inside the training voltage range, before the
+relay density fits) replaces the grid where it is clearly better, or not clearly worse while fitting
+the inner part as closely. Held-out samples are scored inside the training voltage range, before the
 first held-out excursion beyond it, and in relay states that the training part determines
 (:meth:`Design.scored`, :func:`untrained_state`). ``kind="symmetric"`` uses play
 operators instead (a Prandtl–Ishlinskii model, centrally symmetric loops, ridge :data:`RIDGE`);
@@ -61,8 +61,8 @@ from scipy.optimize import nnls
 from scipy.linalg import solve_triangular
 from scipy.signal import cont2discrete, lfilter, lfilter_zi
 
-from ..engine import decorrelation_length, noise_floor
-from .bouc_wen import backbone_columns, bouc_wen_state, fit_bouc_wen_shape
+from ..engine import decorrelation_length, noise_floor, sigma_from_second_differences
+from .bouc_wen import bouc_wen_columns, fit_bouc_wen_shape
 
 __all__ = ["relay_features", "play_features", "solve_weights", "untrained_state", "in_trained_states", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
            "creep_gamma_from_bank", "resonance_filter", "resonance_band", "estimate_resonance", "CANDIDATES"]
@@ -73,13 +73,13 @@ CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "asymmetry")
 #: 32 levels as a third choice made a dynamics record's diagnosis 3× slower (49 s instead of 17 s;
 #: the NNLS grows with the n(n+1)/2 relays) without smaller held-out gaps on the development nulls.
 LEVEL_CHOICES = (16, 24)
+N_LEVELS = LEVEL_CHOICES[0]
 #: Noise floor (:meth:`Design.noise_floor`): second differences of the training residual at this share
 #: of the training sample triples where the voltage moves least, and at least this many of them.
 QUIET_SHARE = 0.1
 QUIET_MIN = 100
 #: Hysteresis families of the rate-independent baseline (:meth:`Design.choose_family`).
 FAMILIES = ("preisach", "bouc_wen")
-N_LEVELS = LEVEL_CHOICES[0]
 #: Inner split: the first 3/4 of the training part fit, its last 1/4 scores.
 INNER_FRACTION = 0.75
 #: Contiguous blocks of the inner validation part for the paired test between two grid sizes.
@@ -385,8 +385,7 @@ class Design:
         span = highs - lows
         k = min(span.size, max(QUIET_MIN, int(round(QUIET_SHARE * span.size))))
         quiet = idx[np.argsort(span, kind="stable")[:k]]
-        d2 = residual[quiet] - 2.0 * residual[quiet + 1] + residual[quiet + 2]
-        return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+        return sigma_from_second_differences(residual[quiet] - 2.0 * residual[quiet + 1] + residual[quiet + 2])
 
     def scored(self) -> tuple[np.ndarray, str]:
         """Held-out samples that count for the gap, and the rule that chose them (the first that
@@ -479,7 +478,7 @@ class Design:
         inner, check, grid_residual, grid_fit_rms = self._inner
         u = self.normalised_voltage()
         shape, fit_rms = fit_bouc_wen_shape(u, self.block, self.free, self.x, inner)
-        cols = np.hstack([self.free, backbone_columns(self.free), bouc_wen_state(u, shape, self.block)[:, None]])
+        cols = np.hstack([self.free, bouc_wen_columns(u, shape, self.block, self.free)])
         w, *_ = np.linalg.lstsq(cols[inner], self.x[inner], rcond=None)
         residual = (cols @ w - self.x)[check]
         self.level_scores["bouc_wen"] = float(np.sqrt(np.mean(residual**2)))
@@ -496,8 +495,7 @@ class Design:
             elif kind == "bouc_wen":
                 u = self.normalised_voltage()
                 self.bouc_wen_shape, _ = fit_bouc_wen_shape(u, self.block, self.free, self.x, self.train)
-                self._hyst[kind] = np.column_stack([backbone_columns(self.free),
-                                                    bouc_wen_state(u, self.bouc_wen_shape, self.block)])
+                self._hyst[kind] = bouc_wen_columns(u, self.bouc_wen_shape, self.block, self.free)
             else:
                 self._hyst[kind] = play_features(self.vc, self.v_lo, self.v_hi, block=self.block)
         return self._hyst[kind]

@@ -225,8 +225,9 @@ def _score_case(case: dict) -> dict:
     rms_base = rep["baseline"]["rms_gap"]
     # oracle: baseline fitted with the true effect removed, true effect added back
     part = _dec(case["effect_part"], rec.n, rec.decimation)
-    d_or = Design(rec.t, rec.v, rec.x - part, rec.y, d.train, n_levels=d.n_levels, v_fine=rec.v_fine)  # the diagnosis' grid
-    base_or = fit_model(d_or, ModelSpec())
+    # the diagnosis' grid and family
+    d_or = Design(rec.t, rec.v, rec.x - part, rec.y, d.train, n_levels=d.n_levels, v_fine=rec.v_fine, family=d.family)
+    base_or = fit_model(d_or, ModelSpec(kind=d.family))
     r_or = rec.x - (base_or.prediction + part)
     shrink_or = 1.0 - float(np.sqrt(np.mean(r_or[held] ** 2))) / rms_base
     shrink = rep["final"]["heldout_shrink"] if verdict else 0.0
