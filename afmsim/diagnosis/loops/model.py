@@ -36,7 +36,8 @@ jointly with the effect):
 * ``dynamics`` — first-order lag ``1/(τ s + 1)`` on the hysteresis(+creep) output, discretised
   either by Tustin (the record is a sampled smooth signal) or by a zero-order hold (half a sample
   more delay: what a lag shorter than one sample looks like after a voltage step); τ and the
-  discretisation by a grid search on the training error, weights refitted. Then, where the
+  discretisation by a grid search on the training error (τ = 0, no lag, is a candidate: a lag
+  under half a sample smears every voltage step), weights refitted. Then, where the
   training part asks for it, a lightly damped resonance ``ω0²/(s² + 2ζω0 s + ω0²)`` after the lag
   (zero-order-hold discretisation; f0, ζ estimated by an equation-error ARX fit between the
   record and the lag model's prediction, refined by full refits on a small grid around it, τ then
@@ -602,8 +603,8 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
             cols = np.hstack([hyst_cols, creep_basis])
         if lag is not None:
             discretisation, tau, mode = lag
-            b, a = LAG_DISCRETISATIONS[discretisation](tau, d.dt)
-            cols = _filt(b, a, cols)
+            if tau > 0:  # τ = 0: no lag (a resonance alone)
+                cols = _filt(*LAG_DISCRETISATIONS[discretisation](tau, d.dt), cols)
             if mode is not None:
                 cols = _filt(*resonance_filter(*mode, d.dt), cols)
         free = np.hstack([cols[:, :n_free_h], extra])
@@ -644,7 +645,9 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
         def best_lag(mode, discretisations=tuple(LAG_DISCRETISATIONS)):
             """(training error, (discretisation, τ, mode)) of the best lag with the resonance ``mode``."""
             grid = np.geomspace(0.3 * d.dt, max(0.02, 3 * d.dt), 10)
-            best = None
+            # no lag at all is a candidate too: below half a sample a discretised lag smears every
+            # voltage step over two samples (Tustin alternates), worse than none on step drives
+            best = (train_error(("tustin", 0.0, mode)), ("tustin", 0.0, mode))
             for discretisation in discretisations:
                 errors = {float(tau): train_error((discretisation, tau, mode)) for tau in grid}
                 k = int(np.argmin(list(errors.values())))
@@ -652,7 +655,7 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
                 for tau in np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)], 5):
                     tau = float(tau)
                     error = errors[tau] if tau in errors else train_error((discretisation, tau, mode))
-                    if best is None or error < best[0]:
+                    if error < best[0]:
                         best = (error, (discretisation, tau, mode))
             return best
 
