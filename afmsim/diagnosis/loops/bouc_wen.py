@@ -98,19 +98,28 @@ def bouc_wen_columns(u, shape: BoucWenShape, block: int, free: np.ndarray) -> np
     return np.column_stack([backbone_columns(free), bouc_wen_state(u, shape, block)])
 
 
-def fit_bouc_wen_shape(u, block: int, free: np.ndarray, x: np.ndarray, mask: np.ndarray) -> tuple[BoucWenShape, float]:
-    """Shape minimising the RMS training error on ``mask`` of ``x ≈ [free, backbone, h]·w``
-    (w by least squares); returns ``(shape, rms error [m])``."""
+def fit_bouc_wen_shape(u, block: int, free: np.ndarray, x: np.ndarray, mask: np.ndarray, *, transform=None, extra: np.ndarray | None = None,
+                       max_evaluations: int = MAX_EVALUATIONS) -> tuple[BoucWenShape, float]:
+    """Shape minimising the RMS training error on ``mask`` of ``x ≈ [T(free, backbone, h), extra]·w``
+    (w by least squares); returns ``(shape, rms error [m])``.
+
+    ``transform`` T (default: none) maps the hysteresis columns to the columns an effect fit makes
+    of them (linear filters: the lag and resonance found, the creep bank's relaxations of every
+    column) and ``extra`` free columns come on top (drift, cross-coupling), so that the shape is
+    fitted jointly with the effects instead of absorbing them."""
+    extra = np.empty((x.size, 0)) if extra is None else extra
 
     def error(theta) -> float:
-        cols = bouc_wen_columns(u, BoucWenShape.from_theta(theta), block, free)
+        cols = np.hstack([free, bouc_wen_columns(u, BoucWenShape.from_theta(theta), block, free)])
+        if transform is not None:
+            cols = transform(cols)
         if not np.all(np.isfinite(cols)):
             return float("inf")
-        a = np.hstack([free, cols])[mask]
+        a = np.hstack([cols, extra])[mask]
         w, *_ = np.linalg.lstsq(a, x[mask], rcond=None)
         return float(np.mean((a @ w - x[mask]) ** 2))
 
-    start = min(START_GRID, key=error)
-    best = minimize(error, np.array(start), method="Nelder-Mead",
-                    options={"maxfev": MAX_EVALUATIONS, "xatol": 1e-3, "fatol": 1e-6 * error(start)})
+    theta0 = np.array(min(START_GRID, key=error))
+    best = minimize(error, theta0, method="Nelder-Mead",
+                    options={"maxfev": max_evaluations, "xatol": 1e-3, "fatol": 1e-6 * error(theta0)})
     return BoucWenShape.from_theta(best.x), float(np.sqrt(best.fun))

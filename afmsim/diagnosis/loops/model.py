@@ -12,7 +12,8 @@ grid of :data:`LEVEL_CHOICES` only when clearly better); the baseline and every 
 record share it. On the same inner split the *family* is chosen (:meth:`Design.choose_family`): the
 Bouc–Wen law (``kind="bouc_wen"``, :mod:`.bouc_wen`: Duhem class, no return-point memory, which no
 relay density fits) replaces the grid where it is clearly better, or not clearly worse while fitting
-the inner part as closely. Held-out samples are scored inside the training voltage range, before the
+the inner part as closely; with effects, the law's shape is then refitted jointly with them
+(:func:`fit_model`). Held-out samples are scored inside the training voltage range, before the
 first held-out excursion beyond it, and in relay states that the training part determines
 (:meth:`Design.scored`, :func:`untrained_state`). ``kind="symmetric"`` uses play
 operators instead (a Prandtl–Ishlinskii model, centrally symmetric loops, ridge :data:`RIDGE`);
@@ -81,6 +82,8 @@ QUIET_SHARE = 0.1
 QUIET_MIN = 100
 #: Hysteresis families of the rate-independent baseline (:meth:`Design.choose_family`).
 FAMILIES = ("preisach", "bouc_wen")
+#: Nelder–Mead evaluations of the Bouc–Wen shape refitted jointly with the effects (:func:`fit_model`).
+JOINT_SHAPE_EVALUATIONS = 400
 #: Inner split: the first 3/4 of the training part fit, its last 1/4 scores.
 INNER_FRACTION = 0.75
 #: Contiguous blocks of the inner validation part for the paired test between two grid sizes.
@@ -235,6 +238,7 @@ def _filt(b, a, cols):
 
 
 def creep_taus(dt: float, span: float) -> np.ndarray:
+    """Time constants (s) of the creep bank: one per decade from max(0.02 s, 5 dt) to the training span."""
     lo = max(0.02, 5 * dt)
     hi = max(span, 2 * lo)
     n = int(np.floor(np.log10(hi / lo))) + 1
@@ -567,12 +571,37 @@ def estimate_resonance(x, prediction, train, dt) -> tuple[float, float] | None:
 
 
 def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
-    """Fit ``spec`` on the training mask of ``d``; the prediction covers the whole record."""
-    eff = set(spec.effects)
+    """Fit ``spec`` on the training mask of ``d``; the prediction covers the whole record.
+
+    With the Bouc–Wen family and effects, the law's shape is fitted again jointly with them
+    (:func:`.bouc_wen.fit_bouc_wen_shape` through the creep bank, lag and resonance found, the drift
+    and coupling columns free) and the model refitted with it, kept where its training error is
+    lower: the baseline's shape was fitted with the effect still in the record and has absorbed
+    part of it (a 2.8 %/decade creep on a Bouc–Wen stage, development seed 1 case 7: held-out
+    shrink 23 % with the baseline's shape, 54 % with the joint one)."""
     if spec.kind not in (*FAMILIES, "symmetric"):
         raise ValueError(f"model kind must be one of {(*FAMILIES, 'symmetric')}, got {spec.kind!r}")
+    fitted, transform, extra = _fit_columns(d, spec, d.hyst(spec.kind))
+    if spec.kind != "bouc_wen" or not spec.effects:
+        return fitted
+    u = d.normalised_voltage()
+    shape, _ = fit_bouc_wen_shape(u, d.block, d.free, d.x, d.train, transform=transform,
+                                  extra=extra, max_evaluations=JOINT_SHAPE_EVALUATIONS)
+    refit, _, _ = _fit_columns(d, spec, bouc_wen_columns(u, shape, d.block, d.free))
+    return refit if _train_mse(d, refit) < _train_mse(d, fitted) else fitted
+
+
+def _train_mse(d: Design, fitted: FittedModel) -> float:
+    return float(np.mean((fitted.prediction - d.x)[d.train] ** 2))
+
+
+def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
+    """:func:`fit_model` with the hysteresis columns ``hf``; returns ``(fitted, transform, extra)``:
+    what the effects make of the hysteresis columns for a shape search (the creep bank's
+    relaxations of every column, the lag and resonance filters; None without them) and the
+    effects' own free columns."""
+    eff = set(spec.effects)
     kind = spec.kind
-    hf = d.hyst(kind)
     smooth = relay_curvature(d.n_levels + 1) if kind == "preisach" else None
     # free offset + linear, then the non-negative hysteresis weights (relays, plays); the Bouc–Wen
     # backbone and state weights are free (their signs are the law's, not a density's)
@@ -704,4 +733,23 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
         k = names.index("asymmetry")
         params["asymmetry"] = {"quadratic_m": float(wf[n_free_h + k]), "cubic_m": float(wf[n_free_h + k + 1]),
                                "extra_terms": 2 + hf.shape[1]}
-    return FittedModel(spec=spec, prediction=pred, n_params=n_params, params=params, hysteresis=hpart)
+    filters = []
+    if creep is not None:
+        # each column's own relaxations with free weights: linear in the weights (the creep bank
+        # itself is bilinear), so the shape search is not tied to the weights a worse shape chose
+        taus = creep[1]
+        filters.append(lambda cols: np.hstack([cols] + [_filt(*lag_filter(tau, d.dt), cols) - cols for tau in taus]))
+    if lag is not None:
+        discretisation, tau, mode = lag
+        if tau > 0:
+            filters.append(lambda cols: _filt(*LAG_DISCRETISATIONS[discretisation](tau, d.dt), cols))
+        if mode is not None:
+            filters.append(lambda cols: _filt(*resonance_filter(*mode, d.dt), cols))
+
+    def transform(cols):
+        for f in filters:
+            cols = f(cols)
+        return cols
+
+    fitted = FittedModel(spec=spec, prediction=pred, n_params=n_params, params=params, hysteresis=hpart)
+    return fitted, (transform if filters else None), extra
