@@ -245,3 +245,23 @@ def test_with_effects_the_bouc_wen_shape_is_refitted_jointly_with_them():
     joint = gap(fit_model(d, creep))
     assert with_baseline_shape > 0.6 * baseline
     assert joint < 0.5 * baseline
+
+
+def test_a_gap_scored_in_untrained_relay_states_says_so():
+    """A generalised-PI null under band-limited noise (open-world seed 14002, case 23, published):
+    the training part reaches its top voltage only in its last samples, so no held-out sample is in a
+    relay state it determines (0 of 3200; a fit on the whole record leaves 8×); the gap scored by the
+    fallback rule (91× the noise) is the grid's extrapolation, and the summary says so. A record whose
+    held-out states are trained gets no such line."""
+    spec = case_plan()[23]
+    assert spec.category == "null"
+    case = make_case(spec, np.random.default_rng([14002, 23]))
+    rep, summary, _ = diagnose_record(load_record(case["columns"]), candidates=[])
+    assert rep["baseline"]["heldout_scoring"] == "before_excursion"
+    assert rep["status"] == "unexplained"
+    assert "relay states that the training part determines" in summary
+    t, v, train = _drive()
+    x = _record(AsymmetricPreisach().apply(np.clip(v, 0.0, 10.0)), v, np.random.default_rng(1))
+    rep, summary, _ = diagnose_record(load_record({"t_s": t, "v_V": v, "x_m": x}), candidates=[])
+    assert rep["baseline"]["heldout_scoring"] == "trained_states"
+    assert "relay states that the training part determines" not in summary

@@ -48,6 +48,9 @@ TRAIN_FRACTION = 0.6
 BASELINE_NAMES = {"preisach": "relay Preisach grid (asymmetric)", "bouc_wen": "Bouc–Wen law (Duhem class)",
                   "symmetric": "play operators (symmetric PI)"}
 RULES = Rules(max_effects=3)
+#: Held-out scoring rules of :meth:`.model.Design.scored` that count samples in relay states the
+#: training part does not determine (the fallbacks after ``"trained_states"``).
+UNTRAINED_SCORING = ("before_excursion", "between_excursions", "in_range")
 
 
 class LoopFront(Front):
@@ -163,6 +166,11 @@ def loop_summary(rep: dict) -> str:
              f"({100 * b['rms_gap'] / (b['travel'] or 1):.2f} % of travel; noise floor {b['noise_floor'] * 1e9:.1f} nm, "
              f"gap {ratio_text(b['gap_to_noise'])} the noise)."]
     lines.append("Where: " + where_text(rep["where"]))
+    if b["heldout_scoring"] in UNTRAINED_SCORING:
+        lines.append(f"Held-out scoring ({b['heldout_scoring']}): too few held-out samples are in relay states that the "
+                     "training part determines, so the gap includes the model's extrapolation to states whose weights "
+                     "no training sample constrained; an excitation that visits in its first "
+                     f"{rep['record']['train_fraction']:.0%} the states of the rest tests the model fairly.")
     lines += effect_lines(rep["effects"])
     lines.append(verdict_text(rep, where_text))
     if "cross_coupling_output" in rep:
