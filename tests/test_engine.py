@@ -6,7 +6,7 @@ A toy front (a sine baseline, a linear drift candidate) makes every status reach
 import numpy as np
 import pytest
 
-from afmsim.diagnosis.engine import Front, attribute, conclude, verdict_text
+from afmsim.diagnosis.engine import Front, attribute, conclude, significance, verdict_text
 from afmsim.diagnosis.plausible import PLAUSIBLE, implausible
 
 N = 3000
@@ -128,3 +128,24 @@ def test_plausible_ranges(effect, key, inside, outside):
     assert implausible(effect, {key: inside}) == []
     flag = implausible(effect, {key: outside})
     assert len(flag) == 1 and flag[0]["parameter"] == key and flag[0]["source"]
+
+
+def test_with_informative_blocks_only_blocks_with_a_gap_vote():
+    """An effect that lives at a drive's steps (bursts in 4 of 10 held-out blocks) removes them and
+    leaves the other blocks at the noise, 1 % worse there: 4 of 10 blocks improve, so the plain
+    block test fails; counting only the blocks with a gap above 2σ², all improve."""
+    rng = np.random.default_rng(5)
+    sigma, n = 1e-8, 4000
+    noise = sigma * rng.standard_normal(n)
+    bursts = np.zeros(n)
+    for k in (0, 3, 6, 9):
+        bursts[k * 400:k * 400 + 100] = 20 * sigma * np.sin(np.linspace(0, 30, 100))
+    r0 = noise + bursts
+    r1 = noise * np.where(bursts != 0, 1.0, 1.01)
+    plain = significance(r0, r1, sigma, 2)
+    informative = significance(r0, r1, sigma, 2, informative_blocks=True)
+    assert plain["blocks_improved"] == pytest.approx(0.4) and not plain["significant"]
+    assert informative["blocks_improved"] == 1.0 and informative["significant"]
+    # a gap everywhere: every block votes either way
+    spread = significance(noise + 5 * sigma, noise, sigma, 2, informative_blocks=True)
+    assert spread["blocks_improved"] == 1.0
