@@ -91,8 +91,9 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: first for the noise floor where the drive moves least (a37c9db); 13001–13003 first for the family
 #: choice that takes the Bouc–Wen law on inner ties (the commit after a37c9db's figures, prompted by
 #: two 12001–12003 records); 14001–14003 first for the no-lag dynamics point, the Bouc–Wen shape refitted
-#: jointly with the effects and the family choice with nuisance drift and coupling columns (b105495).
-FRESH_SEEDS = (14001, 14002, 14003)
+#: jointly with the effects and the family choice with nuisance drift and coupling columns (b105495);
+#: 15001–15003 first for the block test on informative blocks (6901005; 14001–14003 had shown its case).
+FRESH_SEEDS = (15001, 15002, 15003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
