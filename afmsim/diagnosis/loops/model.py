@@ -68,7 +68,7 @@ from ..engine import decorrelation_length, noise_floor, sigma_from_second_differ
 from .bouc_wen import bouc_wen_columns, fit_bouc_wen_shape
 
 __all__ = ["relay_features", "play_features", "solve_weights", "untrained_state", "in_trained_states", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
-           "creep_gamma_from_bank", "resonance_filter", "resonance_band", "estimate_resonance", "CANDIDATES"]
+           "creep_gamma_from_bank", "dynamics_filters", "resonance_filter", "resonance_band", "estimate_resonance", "CANDIDATES"]
 
 CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "asymmetry")
 #: Relay-grid sizes the inner validation chooses from (levels over the training voltage range; the
@@ -236,6 +236,14 @@ def _filt(b, a, cols):
     zi = lfilter_zi(b, a)[:, None] * cols[0][None, :]
     out, _ = lfilter(b, a, cols, axis=0, zi=zi)
     return out
+
+
+def dynamics_filters(lag, dt: float) -> list:
+    """``(b, a)`` filters of a dynamics candidate ``lag = (discretisation, τ, mode)``, in order: the
+    discretised lag (none for τ = 0) and the resonance ``mode = (f0, ζ)`` (none for None)."""
+    discretisation, tau, mode = lag
+    filters = [LAG_DISCRETISATIONS[discretisation](tau, dt)] if tau > 0 else []
+    return filters + ([resonance_filter(*mode, dt)] if mode is not None else [])
 
 
 def creep_taus(dt: float, span: float) -> np.ndarray:
@@ -648,12 +656,8 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
         cols = hyst_cols
         if creep_basis is not None:
             cols = np.hstack([hyst_cols, creep_basis])
-        if lag is not None:
-            discretisation, tau, mode = lag
-            if tau > 0:  # τ = 0: no lag (a resonance alone)
-                cols = _filt(*LAG_DISCRETISATIONS[discretisation](tau, d.dt), cols)
-            if mode is not None:
-                cols = _filt(*resonance_filter(*mode, d.dt), cols)
+        for b, a in dynamics_filters(lag, d.dt) if lag is not None else []:
+            cols = _filt(b, a, cols)
         free = np.hstack([cols[:, :n_free_h], extra])
         pos = cols[:, n_free_h:]
         wf, wp = solve_weights(free, pos, d.x, d.train, smooth=smooth)
@@ -755,14 +759,10 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
     if creep is not None:
         # each column's own relaxations with free weights: linear in the weights (the creep bank
         # itself is bilinear), so the shape search is not tied to the weights a worse shape chose
-        taus = creep[1]
-        filters.append(lambda cols: np.hstack([cols] + [_filt(*lag_filter(tau, d.dt), cols) - cols for tau in taus]))
-    if lag is not None:
-        discretisation, tau, mode = lag
-        if tau > 0:
-            filters.append(lambda cols: _filt(*LAG_DISCRETISATIONS[discretisation](tau, d.dt), cols))
-        if mode is not None:
-            filters.append(lambda cols: _filt(*resonance_filter(*mode, d.dt), cols))
+        relaxations = [lag_filter(tau, d.dt) for tau in creep[1]]
+        filters.append(lambda cols: np.hstack([cols] + [_filt(b, a, cols) - cols for b, a in relaxations]))
+    for b, a in dynamics_filters(lag, d.dt) if lag is not None else []:
+        filters.append(lambda cols, b=b, a=a: _filt(b, a, cols))
 
     def transform(cols):
         for f in filters:
