@@ -69,3 +69,14 @@ def test_no_named_effect_explains_a_null(null_reports):
 def test_other_hysteresis_families_come_out_nothing_missing(null_reports):
     gaps = {family: rep["baseline"]["gap_to_noise"] for family, rep in null_reports.items()}
     assert all(g <= 2.0 for g in gaps.values()), gaps
+
+
+def test_the_bouc_wen_plant_resolves_a_voltage_jump():
+    """A 7 V jump in one sample gives the displacement of the same move spread over 700 samples
+    (with a fixed 8 substeps per sample, as before, they differed by 35 µm, a third of the travel)."""
+    jump = np.r_[np.zeros(10), np.full(10, 7.0), np.full(10, 2.0)]
+    ramp = np.r_[np.zeros(10), np.linspace(0.0, 7.0, 701)[1:], np.full(10, 7.0), np.linspace(7.0, 2.0, 501)[1:], np.full(10, 2.0)]
+    x_jump = null_plant("bouc_wen", jump, np.random.default_rng(3))  # both paths span 0-7 V: the same
+    x_ramp = null_plant("bouc_wen", ramp, np.random.default_rng(3))  # travel normalisation
+    assert abs(x_jump[15] - x_ramp[715]) < 5e-5 * np.ptp(x_ramp)  # 5 nm of 100 µm
+    assert abs(x_jump[-1] - x_ramp[-1]) < 5e-5 * np.ptp(x_ramp)
