@@ -127,6 +127,7 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                      "gap_to_noise": outcome["baseline_gap"]["gap_to_noise"],
                      "train_rms": rms(r_base[train]), "noise_floor": sigma,
                      "relay_levels": d.n_levels if front.kind == "preisach" else None,
+                     "relay_smoothing": d.smoothing if front.kind == "preisach" else None,
                      "bouc_wen_shape": d.bouc_wen_shape.as_dict() if front.kind == "bouc_wen" else None,
                      "inner_rms_by_levels": {str(k): v for k, v in d.level_scores.items()},
                      "heldout_scoring": scoring,
