@@ -92,8 +92,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: choice that takes the Bouc–Wen law on inner ties (the commit after a37c9db's figures, prompted by
 #: two 12001–12003 records); 14001–14003 first for the no-lag dynamics point, the Bouc–Wen shape refitted
 #: jointly with the effects and the family choice with nuisance drift and coupling columns (b105495);
-#: 15001–15003 first for the block test on informative blocks (6901005; 14001–14003 had shown its case).
-FRESH_SEEDS = (15001, 15002, 15003)
+#: 15001–15003 first for the block test on informative blocks (6901005; 14001–14003 had shown its case)
+#: and again, same method, for the Bouc–Wen plant's corrected integration (013a09c); 16001–16003
+#: first for the density prior chosen by inner validation (5913d7e).
+FRESH_SEEDS = (16001, 16002, 16003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
