@@ -9,9 +9,10 @@ density their neighbours' trend continues to, not 0. It stays rate-independent (
 dynamics inside it). The grid size and the prior's weight (its capacity) are chosen per record by
 inner validation on the training part (:meth:`Design.choose_levels`: fit on its first 3/4, score on
 its last 1/4, a larger grid of :data:`LEVEL_CHOICES` or a weaker prior of :data:`SMOOTHING_CHOICES`
-only when clearly better); the baseline and every candidate fit of the record share them. On the same inner split the *family* is chosen (:meth:`Design.choose_family`): the
-Bouc–Wen law (``kind="bouc_wen"``, :mod:`.bouc_wen`: Duhem class, no return-point memory, which no
-relay density fits) replaces the grid where it is clearly better, or not clearly worse while fitting
+only when clearly better); the baseline and every candidate fit of the record share them. On the
+same inner split the *family* is chosen (:meth:`Design.choose_family`): the Bouc–Wen law
+(``kind="bouc_wen"``, :mod:`.bouc_wen`: Duhem class, no return-point memory, which no relay density
+fits) replaces the grid where it is clearly better, or not clearly worse while fitting
 the inner part as closely (both with a linear drift and the cross axis' motion as free nuisance
 columns); with effects, the law's shape is then refitted jointly with them
 (:func:`fit_model`). Held-out samples are scored inside the training voltage range, before the
@@ -469,10 +470,11 @@ class Design:
         else:
             self._hyst["preisach"] = grids[LEVEL_CHOICES[0]]
             return LEVEL_CHOICES[0]
+        curvature = {n: relay_curvature(n + 1) for n in grids}
         best, best_residual = None, None
         for smoothing in SMOOTHING_CHOICES:
             for n, relays in grids.items():
-                wf, wp = solve_weights(self.free, relays, self.x, inner, smooth=relay_curvature(n + 1), smoothing=smoothing)
+                wf, wp = solve_weights(self.free, relays, self.x, inner, smooth=curvature[n], smoothing=smoothing)
                 residual = (self.free @ wf + relays @ wp - self.x)[check]
                 self.level_scores[n if smoothing == SMOOTHING else f"{n}@{smoothing:g}"] = float(np.sqrt(np.mean(residual**2)))
                 if best is None or clearly_better(residual, best_residual):
