@@ -292,3 +292,18 @@ def test_the_inner_validation_weakens_the_density_prior_for_a_sharp_density_only
         gap = {label: float(np.sqrt(np.mean((rec.x - fit_model(d, ModelSpec(kind="preisach")).prediction)[held] ** 2)))
                for label, d in (("chosen", chosen), ("stiff", stiff))}
         assert gap["chosen"] < 0.8 * gap["stiff"], gap
+
+
+def test_a_sensor_mounted_the_other_way_round_gets_the_same_diagnosis():
+    """x falling with the drive (the sensor's sign flipped) is the same stage: the relay density
+    stays ≥ 0 with negated columns, so the held-out gap and the noise floor do not change."""
+    t, v, _ = _drive(4)
+    rng = np.random.default_rng(5)
+    x = null_plant("generalised_pi", v, rng, travel_m=20e-6) + 5e-9 * rng.standard_normal(v.size)
+    upright, _, _ = diagnose_record(load_record((t, v, x)), candidates=[])
+    flipped, summary, _ = diagnose_record(load_record((t, v, -x)), candidates=[])
+    assert upright["baseline"]["drive_polarity"] == 1 and flipped["baseline"]["drive_polarity"] == -1
+    assert flipped["baseline"]["family"] == upright["baseline"]["family"]
+    assert flipped["baseline"]["rms_gap"] == pytest.approx(upright["baseline"]["rms_gap"], rel=1e-6)
+    assert flipped["baseline"]["noise_floor"] == pytest.approx(upright["baseline"]["noise_floor"], rel=1e-6)
+    assert "Polarity" in summary

@@ -130,7 +130,7 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                      "relay_smoothing": d.smoothing if front.kind == "preisach" else None,
                      "bouc_wen_shape": d.bouc_wen_shape.as_dict() if front.kind == "bouc_wen" else None,
                      "inner_rms_by_levels": {str(k): v for k, v in d.level_scores.items()},
-                     "heldout_scoring": scoring,
+                     "heldout_scoring": scoring, "drive_polarity": int(d.polarity),
                      "travel": float(np.ptp(rec.x)), "modelled": list(modelled)},
         "where": front.localise(base),
         "effects": [att.evaluations[c] for c in avail if c in att.evaluations],
@@ -167,6 +167,9 @@ def loop_summary(rep: dict) -> str:
              f"({100 * b['rms_gap'] / (b['travel'] or 1):.2f} % of travel; noise floor {b['noise_floor'] * 1e9:.1f} nm, "
              f"gap {ratio_text(b['gap_to_noise'])} the noise)."]
     lines.append("Where: " + where_text(rep["where"]))
+    if b.get("drive_polarity", 1) < 0:
+        lines.append("Polarity: the displacement falls as the drive rises (a sensor or axis mounted the other way "
+                     "round); the hysteresis is fitted with that sign.")
     if b["heldout_scoring"] in UNTRAINED_SCORING:
         lines.append(f"Held-out scoring ({b['heldout_scoring']}): too few held-out samples are in relay states that the "
                      "training part determines, so the gap includes the model's extrapolation to states whose weights "

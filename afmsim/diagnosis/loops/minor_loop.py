@@ -34,7 +34,7 @@ from scipy.signal import lfilter, lfilter_zi
 from afmsim.reproducible import single_blas_thread
 
 from ..engine import rms
-from .model import N_LEVELS, creep_taus, lag_filter, relay_features, solve_weights
+from .model import N_LEVELS, creep_taus, drive_polarity, lag_filter, relay_features, solve_weights
 
 __all__ = ["minor_loop_law", "minor_loop_excitation", "interior_reversals", "LAWS", "DECISIVE_RATIO"]
 
@@ -206,7 +206,8 @@ def minor_loop_law(t, v, x, train, sigma: float) -> dict:
     vn = (vc - 0.5 * (lo + hi)) / span
     creep = _creep_columns(vn, creep_taus(dt, float(t[train].max() - t[0])), dt)
     free = np.column_stack([np.ones_like(v), vn, creep])
-    preisach = _predict(free, np.hstack([relay_features(vc, lo, hi), latched_relays(vc, lo, hi)]), x, train)
+    relays = drive_polarity(v, x, train) * np.hstack([relay_features(vc, lo, hi), latched_relays(vc, lo, hi)])
+    preisach = _predict(free, relays, x, train)
     duhem, rate, inverse = _fit_duhem(vc, lo, hi, x, train, creep)
     gaps = {"preisach": rms((preisach - x)[held]), "duhem": rms((duhem - x)[held])}
     train_gaps = {"preisach": rms((preisach - x)[train]), "duhem": rms((duhem - x)[train])}
