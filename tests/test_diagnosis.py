@@ -121,3 +121,25 @@ def test_real_record():
     assert flagged <= set(rep["verdict"]) and not flagged & set(rep["findings"])
     if rep["status"] in ("partly_explained", "unexplained"):
         assert rep["unexplained"]["gap_to_noise"] > 2.0 and "time" in rep["unexplained"]["where"]
+
+
+def test_spreadsheet_exports_load_like_the_plain_csv(tmp_path):
+    """Semicolons with a UTF-8 byte-order mark (spreadsheet export), tabs, white space: the same record;
+    a binary file is one line."""
+    t, v, x = _arrays()
+    rows = np.column_stack([t, v, x])
+    plain = tmp_path / "plain.csv"
+    np.savetxt(plain, rows, delimiter=",", header="t_s,v_V,x_m", comments="", fmt="%.10g")
+    reference = load_record(plain)
+    for name, delimiter, encoding in (("excel.csv", ";", "utf-8-sig"), ("tabs.txt", "\t", "utf-8"),
+                                      ("spaces.dat", "  ", "utf-8")):
+        path = tmp_path / name
+        lines = [delimiter.join(("t_s", "v_V", "x_m"))] + [delimiter.join(f"{a:.10g}" for a in r) for r in rows]
+        path.write_text("\n".join(lines) + "\n", encoding=encoding)
+        record = load_record(path)
+        assert np.array_equal(record.x, reference.x) and np.array_equal(record.v, reference.v), name
+    junk = tmp_path / "junk.jpk"
+    junk.write_bytes(bytes(range(256)) * 8)
+    with pytest.raises(ValueError) as info:
+        load_record(junk)
+    assert "\n" not in str(info.value) and "junk.jpk" in str(info.value)

@@ -29,7 +29,10 @@ __all__ = ["calibrate", "predict", "pitch_from_scenario"]
 
 
 def _is_loop_record(path) -> bool:
-    return Path(path).suffix.lower() == ".csv"
+    """A file no AFM image reader claims is a loop record (``.csv``, ``.txt``, ``.tsv``…), as in ``diagnose``."""
+    from afmsim.readers import reader_for
+
+    return reader_for(path) is None
 
 
 def pitch_from_scenario(path) -> float:

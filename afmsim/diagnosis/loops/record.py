@@ -1,5 +1,8 @@
 """Reading and validating a measured loop record (``t_s, v_V, x_m`` [, ``y_m``]).
 
+A CSV file's columns may be separated by commas, semicolons, tabs or white space (spreadsheet exports),
+and a UTF-8 byte-order mark before the header is ignored.
+
 Every problem with the input raises :class:`ValueError` with one line that names it. Records
 that are not exactly uniformly sampled (jitter ≤ 1 % of the median interval) are accepted as is
 (the median interval is used by the linear filters); larger irregularity is resampled onto a
@@ -48,17 +51,26 @@ class LoopRecord:
         return int(self.t.size)
 
 
+def _delimiter(header: str) -> str | None:
+    """The header's column separator: comma, semicolon or tab (spreadsheet exports), else white space."""
+    return next((d for d in (",", ";", "\t") if d in header), None)
+
+
 def _read_csv(path: Path) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise ValueError(f"record file not found: {path}")
-    with open(path, encoding="utf-8") as fh:
-        header = fh.readline().strip()
-    names = [h.strip() for h in header.split(",")]
+    try:
+        with open(path, encoding="utf-8-sig") as fh:  # -sig: a spreadsheet's byte-order mark is not a name
+            header = fh.readline().strip()
+    except UnicodeDecodeError:
+        raise ValueError(f"record {path.name} is not a text CSV file") from None
+    delimiter = _delimiter(header)
+    names = [h.strip() for h in header.split(delimiter)]
     missing = [c for c in REQUIRED if c not in names]
     if missing:
         raise ValueError(f"record {path.name} lacks column(s) {missing}; header must contain t_s,v_V,x_m[,y_m], got {names}")
     try:
-        data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=np.float64, ndmin=2)
+        data = np.genfromtxt(path, delimiter=delimiter, skip_header=1, dtype=np.float64, ndmin=2, encoding="utf-8-sig")
     except Exception as exc:  # pragma: no cover - numpy message varies
         raise ValueError(f"record {path.name} is not numeric CSV: {exc}") from None
     if data.ndim != 2 or data.shape[1] != len(names):
