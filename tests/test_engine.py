@@ -35,6 +35,9 @@ class ToyFront(Front):
     def heldout_residual(self, fitted):
         return (self.x - fitted["pred"])[~TRAIN]
 
+    def train_residual(self, fitted):
+        return (self.x - fitted["pred"])[TRAIN]
+
     def n_params(self, fitted):
         return fitted["w"].size
 
@@ -104,6 +107,22 @@ def test_unexplained_when_no_candidate_fits_the_gap():
     assert out["status"] == "unexplained" and out["findings"] == []
     assert out["unexplained"]["share_left"] == 1.0 and out["unexplained"]["gap_to_noise"] > 2.0
     assert "[unexplained]" in text and "nothing significant" not in text
+
+
+def test_the_remainder_is_read_from_the_training_fit():
+    # a term outside the candidates throughout the record: the training part is missed too
+    out, text = _diagnose(_record(unmodelled=8e-9))
+    assert out["unexplained"]["train_gap_to_noise"] > 2.0 and out["unexplained"]["reading"] == "misfit_throughout"
+    assert "misses its own training part too" in text
+    # a 40 nm slip after the training part: the training part fits, the held-out part does not
+    x = _record()
+    x[T > 45.0] += 40e-9
+    out, text = _diagnose(x)
+    assert out["status"] == "unexplained" and out["unexplained"]["train_gap_to_noise"] <= 2.0
+    assert out["unexplained"]["reading"] == "heldout_only" and "but not the held-out part" in text
+    # within the noise: no reading
+    out, text = _diagnose(_record())
+    assert "reading" not in out["unexplained"] and "Reading" not in text
 
 
 def test_an_implausible_value_is_not_a_finding():

@@ -26,7 +26,9 @@ candidates and its plots through the small :class:`Front` interface; the engine 
 
    The ``unexplained`` block gives what is left after the findings: its RMS, ``gap_to_noise``,
    ``share_left`` (RMS left / baseline RMS), ``excess_share_left`` (mean square above σ² left /
-   the baseline's) and where it lies (the front's localisation, as ``where``);
+   the baseline's), where it lies (the front's localisation, as ``where``), the model's training RMS
+   gap to the noise (``train_gap_to_noise``) and, above 2σ held out, a ``reading`` of it
+   (:data:`READINGS`: the model misses its own training part too, or only the held-out part);
 5. the verdict sentence and the effect lines of the terminal summary (:func:`verdict_text`,
    :func:`effect_lines`).
 """
@@ -40,7 +42,7 @@ import numpy as np
 from .plausible import implausible
 
 __all__ = ["Front", "Rules", "Attribution", "attribute", "significance", "noise_floor", "decorrelation_length", "conclude",
-           "verdict_text", "effect_lines", "ratio_text", "rms", "HONEST_FACTOR", "STATUSES"]
+           "verdict_text", "READINGS", "effect_lines", "ratio_text", "rms", "HONEST_FACTOR", "STATUSES"]
 
 HONEST_FACTOR = 2.0
 #: :func:`significance` with ``informative_blocks``: a block votes when its current mean square exceeds
@@ -152,6 +154,10 @@ class Front:
     def localise(self, fitted) -> dict:
         """Where the held-out gap of ``fitted`` lies (the report's ``where``)."""
         raise NotImplementedError
+
+    def train_residual(self, fitted) -> np.ndarray | None:
+        """Residual (data − model) on the training samples, 1-D; None where the front has none."""
+        return None
 
     def refresh(self, effects: tuple, fitted):
         """The accepted model at the start of a later round (default: as accepted)."""
@@ -289,6 +295,11 @@ def conclude(front: Front, att: Attribution, sigma: float, candidates, *, rules:
                    "share_left": round(kept["rms_gap"] / rms_base, 4) if rms_base > 0 else 0.0,
                    "excess_share_left": round(max(ms_left, 0.0) / ms_base, 4) if ms_base > 0 else 0.0,
                    "where": front.localise(kept_att.final)}
+    train = front.train_residual(kept_att.final)
+    if train is not None and sigma > 0:
+        unexplained["train_gap_to_noise"] = round(rms(train) / sigma, 3)
+        if not _within(kept):
+            unexplained["reading"] = "misfit_throughout" if rms(train) > HONEST_FACTOR * sigma else "heldout_only"
     if flags:
         final["findings_only"] = {"effects": list(findings), "rms_gap": kept["rms_gap"],
                                   "gap_to_noise": kept["gap_to_noise"],
@@ -324,6 +335,19 @@ def ratio_text(x) -> str:
     return "n/a (no noise floor)" if x is None else f"{x:.1f}×"
 
 
+#: What the remainder's training-part fit says (``unexplained.reading``), with the model's training
+#: RMS gap to the noise: a model that misses its own training part lacks capacity or a term that acts
+#: throughout; one that fits it but not the held-out part meets states or changes it never saw.
+READINGS = {
+    "misfit_throughout": "Reading: the model misses its own training part too ({train} the noise floor): its "
+                         "baseline family or capacity falls short for this instrument, or something outside the "
+                         "candidates acts throughout the record.",
+    "heldout_only": "Reading: the model fits its training part ({train} the noise floor) but not the held-out part: "
+                    "the held-out part reaches states the training part did not determine, or something changes "
+                    "during the record (a drift, a gain change, a slip).",
+}
+
+
 def verdict_text(rep: dict, where_text) -> str:
     """The verdict lines for a report carrying :func:`conclude`'s entries; ``where_text(where)``
     is the front's one-line description of a localisation."""
@@ -348,4 +372,6 @@ def verdict_text(rep: dict, where_text) -> str:
         why = "no candidate with a plausible value" if rep["implausible"] else "no candidate"
         lines.append(f"Verdict [unexplained]: {why} explains the gap: {left}. "
                      f"Where — {where_text(un['where'])}")
+    if un.get("reading") in READINGS:
+        lines.append(READINGS[un["reading"]].format(train=ratio_text(un["train_gap_to_noise"])))
     return "\n".join(lines)

@@ -212,6 +212,9 @@ class ImageFront(Front):
     def heldout_residual(self, fitted: ImageFit) -> np.ndarray:
         return _held_rows(self.design, fitted, self.design.held)
 
+    def train_residual(self, fitted: ImageFit) -> np.ndarray:
+        return _held_rows(self.design, fitted, self.design.train)
+
     def n_params(self, fitted: ImageFit) -> int:
         return fitted.n_params
 

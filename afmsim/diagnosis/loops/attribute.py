@@ -68,6 +68,9 @@ class LoopFront(Front):
     def heldout_residual(self, fitted: FittedModel) -> np.ndarray:
         return self.residual(fitted)[self.held]
 
+    def train_residual(self, fitted: FittedModel) -> np.ndarray:
+        return self.residual(fitted)[self.design.train]
+
     def n_params(self, fitted: FittedModel) -> int:
         return fitted.n_params
 

@@ -69,7 +69,7 @@ from scipy.stats import binomtest
 from afmsim.stage import AsymmetricPreisach
 from afmsim.workers import available_cores, ordered_map, worker_pool
 
-from ..engine import HONEST_FACTOR, STATUSES
+from ..engine import HONEST_FACTOR, READINGS, STATUSES
 from .attribute import diagnose_record
 from .distractors import gain_change, mains_pickup, rate_dependent_width, slip
 from .null_plants import NULL_FAMILIES, null_plant
@@ -376,6 +376,8 @@ def run_case(seed: int, index: int) -> dict:
         "samples": rec.n, "decimation": rec.decimation, "verdict": rep["verdict"], "findings": rep["findings"],
         "status": rep["status"], "gap_to_noise": rep["baseline"]["gap_to_noise"],
         "final_gap_to_noise": rep["unexplained"]["gap_to_noise"],
+        "final_train_gap_to_noise": rep["unexplained"].get("train_gap_to_noise"),
+        "reading": rep["unexplained"].get("reading"),
         "reference_gap_to_noise": ref["baseline"]["gap_to_noise"],
         "implausible": [f["effect"] for f in rep["implausible"]],
         # oracle: the injected term raises the baseline's held-out mean square by ≥ σ²
@@ -459,6 +461,10 @@ def score_cases(results: list[dict]) -> dict:
             for kind in EXCITATIONS if (g := [r["gap_to_noise"] for r in nulls if r.get("excitation") == kind])},
         "status_counts": {cat: {s: sum(r["status"] == s for r in ok if r["category"] == cat) for s in STATUSES}
                           for cat in ("effect", "null", "distractor")},
+        # above 2x: does the final model miss its own training part too (capacity), or the held-out part only?
+        "null_readings": {plant: {reading: sum(r.get("reading") == reading for r in nulls if r["plant"] == plant)
+                                  for reading in READINGS}
+                          for plant in dict.fromkeys(r["plant"] for r in nulls)},
         "detection_vs_magnitude": detection,
         "distractors": distractors,
     }
