@@ -11,7 +11,9 @@ candidates and its plots through the small :class:`Front` interface; the engine 
    standard of the status below — a candidate must also shrink it by ``Rules.min_step_near_noise``:
    near the noise the test's relative criterion (15 % of a small excess) is met by terms that
    absorb a sliver of the baseline's own misfit; one that passes the test but not this is reported
-   (``gap_within_noise``) and not named;
+   (``gap_within_noise``) and not named. With ``Rules.pair_lookahead`` (loops), a round where no
+   candidate is significant alone and the gap is above ``HONEST_FACTOR`` × σ tries pairs
+   (:func:`_pair_step`): two effects that act together, each needed on top of the other;
 2. the significance test (:func:`significance`);
 3. plausibility: an accepted effect whose fitted parameter lies outside its physical range
    (:mod:`.plausible`) is *implausible* — it absorbs another mismatch and is not a finding; the
@@ -35,6 +37,7 @@ candidates and its plots through the small :class:`Front` interface; the engine 
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -123,7 +126,9 @@ class Rules:
     ``HONEST_FACTOR`` × the noise floor (the image front's practical size, :data:`.images.attribute.RULES`);
     ``tie_bic``: ΔBIC within this of the best is equal evidence (the earlier canonical name wins);
     ``redundant``: candidates whose :meth:`Front.redundancy` is below this are not fitted;
-    ``informative_blocks``: the block test counts only blocks with a gap (:func:`significance`).
+    ``informative_blocks``: the block test counts only blocks with a gap (:func:`significance`);
+    ``pair_lookahead``: where no candidate is significant alone and the gap is above
+    ``HONEST_FACTOR`` × σ, pairs are tried (:func:`_pair_step`).
     """
 
     max_effects: int = 3
@@ -133,6 +138,7 @@ class Rules:
     tie_bic: float = 0.0
     redundant: float = 0.0
     informative_blocks: bool = False
+    pair_lookahead: bool = False
 
 
 class Front:
@@ -229,6 +235,18 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
                     test["significant"] = False
                     evaluations[c]["gap_within_noise"] = True
         passed = [c for c in trial if trial[c][2]["significant"]]
+        if not passed and rules.pair_lookahead and rms(cur_r) > HONEST_FACTOR * sigma \
+                and len(current) - len(modelled) + 2 <= rules.max_effects:
+            pair = _pair_step(front, current, cur_fit, cur_r, trial, sigma, rules)
+            if pair is None:
+                break
+            members, cur_fit, cur_r, tests = pair
+            current = current + members
+            for c in members:
+                evaluations[c].update(significant=True, found_with=[m for m in members if m != c],
+                                      heldout_shrink=round(1.0 - rms(cur_r) / rms_base, 4) if rms_base > 0 else 0.0,
+                                      pair_test=_round(tests["pair"]), needed_given_other=_round(tests[c]))
+            continue
         if not passed:
             break
         top = min(trial[c][2]["delta_bic"] for c in passed)
@@ -242,6 +260,34 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
     for c in accepted:  # parameters of accepted effects come from the final joint fit
         evaluations[c]["params"] = front.effect_params(cur_fit, c)
     return Attribution(modelled, accepted, base, cur_fit, evaluations)
+
+
+def _pair_step(front: Front, current: tuple, cur_fit, cur_r, trial: dict, sigma: float, rules: Rules):
+    """Two effects at once, for a round where none is significant alone and the gap is above
+    ``HONEST_FACTOR`` × σ: two effects that act together can each leave a model that is worse or
+    no better held out on its own (a creep bank fitted without the resonance bends the loops to
+    follow the ringing). A pair is taken when, added to the current model, it is significant
+    (:func:`significance`, its parameters as the penalty), and each member is significant on top
+    of the other one alone — neither rides on the other's shrink. Of the pairs that pass, the most
+    negative ΔBIC wins; its members are listed with the one whose removal costs more first.
+    Returns ``((first, second), fit, held-out residual, {"pair": test, member: test})`` or None."""
+    best = None
+    for a, b in itertools.combinations(list(trial), 2):
+        fit = front.fit(current + (a, b), cur_fit)
+        r = front.heldout_residual(fit)
+        test = significance(cur_r, r, sigma, max(front.n_params(fit) - front.n_params(cur_fit), 2),
+                            informative_blocks=rules.informative_blocks)
+        if not test["significant"] or (best is not None and test["delta_bic"] >= best[3]["pair"]["delta_bic"]):
+            continue
+        tests = {"pair": test}
+        for member, other in ((a, b), (b, a)):
+            alone_fit, alone_r, _ = trial[other]
+            tests[member] = significance(alone_r, r, sigma, max(front.n_params(fit) - front.n_params(alone_fit), 1),
+                                         informative_blocks=rules.informative_blocks)
+        if all(tests[m]["significant"] for m in (a, b)):
+            order = tuple(sorted((a, b), key=lambda m: tests[m]["delta_bic"]))
+            best = (order, fit, r, tests)
+    return best
 
 
 def _gap(front: Front, fitted, sigma: float, rms_base: float) -> dict:
