@@ -235,9 +235,10 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
                     test["significant"] = False
                     evaluations[c]["gap_within_noise"] = True
         passed = [c for c in trial if trial[c][2]["significant"]]
-        if not passed and rules.pair_lookahead and rms(cur_r) > HONEST_FACTOR * sigma \
-                and len(current) - len(modelled) + 2 <= rules.max_effects:
-            pair = _pair_step(front, current, cur_fit, cur_r, trial, sigma, rules)
+        if not passed:
+            lookahead = rules.pair_lookahead and rms(cur_r) > HONEST_FACTOR * sigma \
+                and len(current) - len(modelled) + 2 <= rules.max_effects
+            pair = _pair_step(front, current, cur_fit, cur_r, trial, sigma, rules) if lookahead else None
             if pair is None:
                 break
             members, cur_fit, cur_r, tests = pair
@@ -247,8 +248,6 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
                                       heldout_shrink=round(1.0 - rms(cur_r) / rms_base, 4) if rms_base > 0 else 0.0,
                                       pair_test=_round(tests["pair"]), needed_given_other=_round(tests[c]))
             continue
-        if not passed:
-            break
         top = min(trial[c][2]["delta_bic"] for c in passed)
         tied = [c for c in passed if trial[c][2]["delta_bic"] <= top + rules.tie_bic]  # canonical order
         cur_fit, cur_r = trial[tied[0]][0], trial[tied[0]][1]
