@@ -1,6 +1,7 @@
 """Sim-to-real gap diagnosis: input validation, report structure, a small validation run, real record."""
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -143,3 +144,23 @@ def test_spreadsheet_exports_load_like_the_plain_csv(tmp_path):
     with pytest.raises(ValueError) as info:
         load_record(junk)
     assert "\n" not in str(info.value) and "junk.jpk" in str(info.value)
+
+
+def test_unit_labelled_headers_are_converted_to_si(tmp_path):
+    """Headers in other units (µm, ms, mV; underscore or brackets) give the SI record; an extra column
+    is ignored; a unit not understood, or a quantity given twice, is one line naming the column."""
+    t, v, x = _arrays()
+    reference = load_record((t, v, x))
+    labelled = tmp_path / "labelled.csv"
+    np.savetxt(labelled, np.column_stack([t * 1e3, v * 1e3, x * 1e6, x]), delimiter=",",
+               header="t [ms],V (mV),x_µm,x_set_m", comments="", fmt="%.12g", encoding="utf-8")
+    record = load_record(labelled)
+    assert np.allclose(record.t, reference.t, rtol=1e-9) and np.allclose(record.v, reference.v, rtol=1e-9)
+    assert np.allclose(record.x, reference.x, rtol=1e-9, atol=1e-18)
+    for header, expected in (("t_s,v_V,x_pm", "'x_pm' (x in m, mm"), ("t_s,v_V,x_m,x_nm", "x is given twice")):
+        path = tmp_path / "bad_units.csv"
+        np.savetxt(path, np.column_stack([t, v, x] + [x] * (header.count(",") - 2)), delimiter=",",
+                   header=header, comments="")
+        with pytest.raises(ValueError, match=re.escape(expected)) as info:
+            load_record(path)
+        assert "\n" not in str(info.value)

@@ -1,7 +1,10 @@
 """Reading and validating a measured loop record (``t_s, v_V, x_m`` [, ``y_m``]).
 
 A CSV file's columns may be separated by commas, semicolons, tabs or white space (spreadsheet exports),
-and a UTF-8 byte-order mark before the header is ignored.
+and a UTF-8 byte-order mark before the header is ignored. Each header names a quantity (``t``, ``v``,
+``x``, ``y``, any case) and its unit, after an underscore or in brackets — ``x_m``, ``x_um``,
+``x [µm]``, ``t (ms)``, ``V_mV`` — from :data:`UNITS`; values are converted to SI on reading (columns
+with other names are ignored).
 
 Every problem with the input raises :class:`ValueError` with one line that names it. Records
 that are not exactly uniformly sampled (jitter ≤ 1 % of the median interval) are accepted as is
@@ -15,16 +18,26 @@ so a hysteresis model must see the fine voltage and be block-averaged itself
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["LoopRecord", "load_record", "MIN_SAMPLES", "MAX_SAMPLES"]
+__all__ = ["LoopRecord", "load_record", "MIN_SAMPLES", "MAX_SAMPLES", "UNITS"]
 
 MIN_SAMPLES = 200
 MAX_SAMPLES = 8000
 REQUIRED = ("t_s", "v_V", "x_m")
+#: Units a CSV header may give each quantity, with their factor to SI (s, V, m).
+UNITS = {
+    "t": {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6},
+    "v": {"V": 1.0, "mV": 1e-3, "kV": 1e3},
+    "x": {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "μm": 1e-6, "nm": 1e-9},
+}
+UNITS["y"] = UNITS["x"]
+_SI_NAME = {"t": "t_s", "v": "v_V", "x": "x_m", "y": "y_m"}
+_HEADER = re.compile(r"^([tvxyTVXY])\s*(?:_\s*|\[\s*|\(\s*)([^\]\)\s]+)\s*[\]\)]?$")
 
 
 @dataclass(frozen=True)
@@ -66,16 +79,40 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
         raise ValueError(f"record {path.name} is not a text CSV file") from None
     delimiter = _delimiter(header)
     names = [h.strip() for h in header.split(delimiter)]
-    missing = [c for c in REQUIRED if c not in names]
-    if missing:
-        raise ValueError(f"record {path.name} lacks column(s) {missing}; header must contain t_s,v_V,x_m[,y_m], got {names}")
+    columns = _header_columns(path.name, names)
     try:
         data = np.genfromtxt(path, delimiter=delimiter, skip_header=1, dtype=np.float64, ndmin=2, encoding="utf-8-sig")
     except Exception as exc:  # pragma: no cover - numpy message varies
         raise ValueError(f"record {path.name} is not numeric CSV: {exc}") from None
     if data.ndim != 2 or data.shape[1] != len(names):
         raise ValueError(f"record {path.name}: rows do not match the {len(names)} header columns")
-    return {n: data[:, k] for k, n in enumerate(names) if n in (*REQUIRED, "y_m")}
+    return {si: data[:, k] * factor for si, (k, factor) in columns.items()}
+
+
+def _header_columns(file_name: str, names: list[str]) -> dict[str, tuple[int, float]]:
+    """SI column name → (column index, factor to SI) for the headers that name a quantity in a unit
+    of :data:`UNITS`. Other columns are ignored; a quantity given twice is refused, and so is a
+    missing one, naming any column that looked like it but had a unit not understood."""
+    columns: dict[str, tuple[int, float]] = {}
+    not_understood = []
+    for k, name in enumerate(names):
+        match = _HEADER.match(name)
+        if match is None:
+            continue
+        quantity, unit = match.group(1).lower(), match.group(2)
+        if unit not in UNITS[quantity]:
+            not_understood.append(f"{name!r} ({quantity} in {', '.join(UNITS[quantity])})")
+            continue
+        si = _SI_NAME[quantity]
+        if si in columns:
+            raise ValueError(f"record {file_name}: {quantity} is given twice ({names[columns[si][0]]!r} and {name!r})")
+        columns[si] = (k, UNITS[quantity][unit])
+    missing = [c for c in REQUIRED if c not in columns]
+    if missing:
+        hint = f"; units not understood: {'; '.join(not_understood)}" if not_understood else ""
+        raise ValueError(f"record {file_name} lacks column(s) {missing}; header must contain t_s,v_V,x_m[,y_m] "
+                         f"(or the same quantities in other units, e.g. x_um, t [ms]), got {names}{hint}")
+    return columns
 
 
 def _nan_check(name: str, a: np.ndarray) -> np.ndarray:
