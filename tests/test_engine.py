@@ -202,3 +202,16 @@ def test_a_pair_that_only_works_together_is_named_with_the_lookahead_only():
     y = 1e-6 * np.sin(2 * np.pi * 0.5 * T) + SIGMA * rng.standard_normal(N)
     y[T > 45.0] += 30e-9  # a slip held out: a gap no candidate (and no pair) explains
     assert attribute(PairFront(y), ["rise", "bend"], SIGMA, rules=Rules(pair_lookahead=True)).accepted == ()
+
+
+def test_flattest_noise_sees_the_instrument_not_the_rough_sample():
+    """White noise σ on an image whose left half is rough at the pixel scale: the flattest windows give
+    σ (within the estimator's known low bias), the whole image's second differences do not."""
+    from afmsim.diagnosis.engine import flattest_noise, noise_floor
+    rng = np.random.default_rng(2)
+    sigma = 1e-9
+    image = sigma * rng.standard_normal((40, 256))
+    image[:, :128] += 8e-9 * rng.standard_normal((40, 128))  # pixel-scale roughness of the sample
+    assert 0.7 * sigma < flattest_noise((image,)) < 1.05 * sigma
+    assert noise_floor(image.ravel()) > 2 * sigma
+    assert np.isnan(flattest_noise((image[:, :20],)))

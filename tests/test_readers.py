@@ -395,3 +395,29 @@ def test_inspect_and_diagnose_measured_run_on_each_made_format(tmp_path, fmt, mo
     report = json.loads((out / "diagnosis.json").read_text())
     assert "verdict" in report and (out / "summary.txt").exists()
     assert "picked" in json.dumps(json.loads((out / "manifest.json").read_text()))
+
+
+def _nsfopen_examples() -> list:
+    try:
+        import NSFopen
+    except ImportError:  # pragma: no cover - a declared dependency
+        return []
+    return sorted((Path(NSFopen.__file__).parent / "example").rglob("*.nid"))
+
+
+@pytest.mark.skipif(not _nsfopen_examples(), reason="nsfopen's example files absent")
+def test_every_nid_that_nsfopen_ships_is_listed_or_refused_in_one_line():
+    """Real files nobody used to build the readers (nsfopen's examples: five not in ../shared, two of
+    them from heads with no file there): each image file lists both directions of a height channel
+    and picks one; the spectroscopy-only file is one line, exit 2."""
+    images = 0
+    for path in _nsfopen_examples():
+        result = runner.invoke(app, ["inspect", str(path)])
+        if "thermal" in path.name:
+            assert result.exit_code == 2 and "no image channels" in result.output
+            assert len(result.output.strip().splitlines()) == 1
+            continue
+        assert result.exit_code == 0, (path.name, result.output)
+        assert "picked" in result.output and "forward/backward" in result.output, path.name
+        images += 1
+    assert images >= 8

@@ -115,6 +115,23 @@ def test_calibration_recovers_a_known_twin():
     assert np.nanmean(measured.shift_m) < 0
 
 
+def test_predicted_scan_takes_its_height_noise_from_its_own_trace():
+    """The noise of the scan a twin predicts is measured on that file's trace (flattest parts), whatever
+    the calibration file showed: the same head gave 4.6 nm on test.nid and 0.03 nm on MoS2.nid."""
+    scan = RealScan((30e-6, 10e-6), 96, 32, 0.5)
+    twin = Instrument(z_loop={"height_noise_nm": 20.0})
+    rng = np.random.default_rng(5)
+    reported = {}
+    for sigma in (0.1e-9, 2e-9):
+        trace = _blobs(lines=32, pixels=96, seed=3) + sigma * rng.standard_normal((32, 96))
+        retrace = np.roll(trace, -1, axis=1) + sigma * rng.standard_normal((32, 96))
+        prediction, _ = predict_images(twin, trace, retrace, scan, seed=1)
+        reported[sigma] = prediction["height_noise_m"]
+        assert 0.6 * sigma < prediction["height_noise_m"] < 1.1 * sigma, (sigma, prediction["height_noise_m"])
+        assert "this file's trace" in prediction["height_noise_from"]
+    assert reported[2e-9] > 10 * reported[0.1e-9]
+
+
 def test_overscan_from_header():
     assert overscan_from_metadata({"Overscan": "5 %"}) == pytest.approx(0.05)
     assert overscan_from_metadata({"Scan": "x"}) is None
@@ -184,6 +201,34 @@ def test_real_circles_predict_squares_holes():
     prediction, _ = predict_images(cal.instrument, squares.trace[lines], squares.retrace[lines], part(squares))
     assert prediction["rms_error_m"] <= 0.2 * prediction["measured_rms_m"]
     assert prediction["rms_error_m"] <= prediction["default_stage"]["rms_error_m"] / 3
+    assert abs(prediction["nsl2_relative_error"]) <= 0.3
+
+
+def _nsfopen_example(relative: str) -> Path:
+    import NSFopen
+    return Path(NSFopen.__file__).parent / "example" / relative
+
+
+@needs_real_afm
+@pytest.mark.skipif(not _nsfopen_example("Plotting_Data/MoS2.nid").is_file(), reason="nsfopen's example files absent")
+def test_twin_of_test_nid_predicts_nsl2_of_the_same_heads_mos2_scan():
+    """``test.nid`` and nsfopen's example ``MoS2.nid`` share scan head 75-16-106 but not their noise
+    (4.6 nm vs 0.03 nm): with the calibration file's noise the twin put NSL2 at +242 % on these 48
+    lines (+320 % on the whole scan); with the scan's own noise it is within 30 %. MoS2 is a
+    development file since (docs/instrument-twin.md, "Checked on real files nobody tuned on")."""
+    test = load_measured_pair(REAL_AFM / "test.nid")
+    mos2 = load_measured_pair(_nsfopen_example("Plotting_Data/MoS2.nid"))
+    lines = 48
+
+    def part(pair):
+        return RealScan((pair.scan.size_m[0], pair.scan.size_m[1] * lines / pair.trace.shape[0]), pair.scan.pixels,
+                        lines, pair.scan.line_time_s)
+
+    start = Instrument(scan=ScanHabitSpec(overscan_fraction=test.overscan_fraction))
+    cal = calibrate_images(test.trace[:lines], test.retrace[:lines], part(test), start=start, max_nfev=15)
+    assert cal.instrument.z_loop.height_noise_nm > 1.0  # a rough 50 µm scan
+    prediction, _ = predict_images(cal.instrument, mos2.trace[:lines], mos2.retrace[:lines], part(mos2))
+    assert prediction["height_noise_m"] < 0.1e-9
     assert abs(prediction["nsl2_relative_error"]) <= 0.3
 
 

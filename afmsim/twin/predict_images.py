@@ -3,12 +3,19 @@
 The measured trace is the sample estimate; the scan (size, pixels, lines, line time from the file) is
 simulated by :func:`afmsim.twin.simulate.simulate_scan`; the simulated retrace's shift profile and
 NSL2 (paper eq. 8, :func:`afmsim.metrics.nsl2_binarized`) are compared with the measured ones.
+
+The height noise of the simulated scan is that scan's own, measured on the flattest parts of the
+file's trace (:func:`afmsim.diagnosis.engine.flattest_noise`; the retrace is never looked at), not the
+calibration file's: it belongs to the scan (sample, Z range, gains) more than to the head. The same
+head (scan head 75-16-106) shows 4.6 nm on ``test.nid`` and 0.03 nm on nsfopen's ``MoS2.nid``; with
+the calibration file's noise the twin overstated MoS2's NSL2 by +320 %.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from afmsim.diagnosis.engine import flattest_noise
 from afmsim.metrics import nsl2_binarized
 from afmsim.scan import ZFeedback
 from afmsim.stage import default_stage
@@ -45,19 +52,27 @@ def predict_images(instrument: Instrument, trace, retrace, scan: RealScan, *, se
     """``(prediction, arrays)``: the ``prediction.json`` content and the images/profiles for the figure.
 
     The default-stage prediction uses afmsim's default stage and Z loop with the same raster habit
-    (overscan, image centred in the travel) as the twin, so only the instrument differs.
+    (overscan, image centred in the travel) and the same height noise as the twin, so only the
+    instrument differs.
     """
     trace = np.asarray(trace, dtype=np.float64)
     retrace = np.asarray(retrace, dtype=np.float64)
     dx = scan.size_m[0] / scan.pixels
     measured = shift_profile(trace, retrace, dx, REPORT_WINDOWS)
     measured_nsl2 = nsl2_binarized(trace, retrace)
-    twin = _simulated(build_twin_stage(instrument), twin_z_feedback(instrument), trace, scan, instrument,
+    noise_m = flattest_noise((trace,))
+    noise_from = "this file's trace (flattest parts)"
+    if not np.isfinite(noise_m):  # lines shorter than a noise window
+        noise_m, noise_from = instrument.z_loop.height_noise_nm * 1e-9, "the instrument (lines too short to measure)"
+    noise_m = min(noise_m, 100e-9)
+    scan_instrument = instrument.model_copy(update={"z_loop": instrument.z_loop.model_copy(
+        update={"height_noise_nm": noise_m * 1e9})})
+    twin = _simulated(build_twin_stage(instrument), twin_z_feedback(scan_instrument), trace, scan, instrument,
                       instrument.fast_axis.travel_um * 1e-6, seed)
     stock = default_stage()
     stock_travel_m = stock.x.params.sensitivity_m_per_V * stock.x.params.hysteresis.calibration_amplitude_V
     try:
-        default = _simulated(stock, ZFeedback(), trace, scan, instrument, stock_travel_m, seed)
+        default = _simulated(stock, ZFeedback(deflection_noise_m=noise_m), trace, scan, instrument, stock_travel_m, seed)
     except ValueError as error:  # the scan does not fit the default stage's travel
         default = error
     measured_rms = _rms(measured.shift_m)
@@ -83,6 +98,7 @@ def predict_images(instrument: Instrument, trace, retrace, scan: RealScan, *, se
         "predicted_over_default_rms_error": (twin_scores["rms_error_m"] / default_scores["rms_error_m"]
                                              if default_scores["rms_error_m"] else None),
         "default_stage": default_scores,
+        "height_noise_m": noise_m, "height_noise_from": noise_from,
         "scan": {"size_m": scan.size_m, "pixels": scan.pixels, "lines": scan.lines, "line_time_s": scan.line_time_s},
         "seed": seed,
         "sign": "shift = x_retrace - x_trace of a feature; negative when the retrace shows it to the left",

@@ -43,7 +43,7 @@ from numpy.polynomial import legendre
 
 from afmsim.reproducible import single_blas_thread
 
-from ..engine import Front, Rules, attribute, conclude, effect_lines, noise_floor, ratio_text, rms, verdict_text
+from ..engine import Front, Rules, attribute, conclude, effect_lines, flattest_noise, noise_floor, ratio_text, rms, verdict_text
 from ..scenario_effects import as_scenario, modelled_effects
 from .fit import ImageDesign, ImageFit, fit_image, redundancy
 from .localise import localise_image
@@ -156,26 +156,12 @@ def bow_params(design: ImageDesign, fit: ImageFit) -> dict:
     return out
 
 
-SENSOR_WINDOW = 32  # pixels per window of the sensor-noise estimate
-SENSOR_QUANTILE = 0.1  # the flattest tenth of the windows
-
-
 def sensor_noise(record: ImageRecord, lines: np.ndarray) -> float:
-    """White height noise (m) of the instrument, from the measured images themselves: the robust σ of
-    second differences along the line (σ_Δ² = √6·σ) in windows of ``SENSOR_WINDOW`` pixels, the
-    ``SENSOR_QUANTILE`` quantile over the windows of both directions (the flattest parts: edges and
-    pixel-scale roughness inflate the others). Independent of any model. Biased low for pure white
-    noise (a 32-pixel window's σ scatters by ~20 %), so gaps against it read conservatively high."""
-    sig = []
-    for img in (record.trace[lines], record.retrace[lines]):
-        d2 = np.diff(img, 2, axis=1)
-        n = d2.shape[1] // SENSOR_WINDOW * SENSOR_WINDOW
-        if n == 0:
-            return float("nan")
-        w = d2[:, :n].reshape(d2.shape[0], -1, SENSOR_WINDOW)
-        mad = np.median(np.abs(w - np.median(w, axis=2, keepdims=True)), axis=2)
-        sig.append((1.4826 * mad / np.sqrt(6.0)).ravel())
-    return float(np.quantile(np.concatenate(sig), SENSOR_QUANTILE))
+    """White height noise (m) of the instrument, from the measured images themselves
+    (:func:`~afmsim.diagnosis.engine.flattest_noise` over the ``lines`` of both directions).
+    Independent of any model; biased low for pure white noise, so gaps against it read
+    conservatively high."""
+    return flattest_noise((record.trace[lines], record.retrace[lines]))
 
 
 def line_offsets(record: ImageRecord, lines: np.ndarray) -> dict:
