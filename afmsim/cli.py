@@ -555,7 +555,8 @@ def predict_command(
                    f"{result['rms_error_m'] * 1e6:.3f} µm"
                    + (f", default stage {default['rms_error_m'] * 1e6:.3f} µm" if default["rms_error_m"] else ""))
         typer.echo(f"NSL2: measured {result['nsl2']['measured']:.0f}, twin {result['nsl2']['predicted']:.0f}"
-                   + (f", default stage {default['nsl2']['predicted']:.0f}" if default["nsl2"] else ""))
+                   + (f", default stage {default['nsl2']['predicted']:.0f}" if default["nsl2"] else "")
+                   + f" (height noise {result['height_noise_m'] * 1e9:.3g} nm from {result['height_noise_from']})")
     else:
         typer.echo(f"held-out RMS: twin {result['twin']['held_out_rms_m'] * 1e6:.3f} µm, "
                    f"default stage {result['default_stage']['held_out_rms_m'] * 1e6:.3f} µm")
