@@ -174,6 +174,38 @@ def test_a_duhem_class_stage_gets_the_bouc_wen_baseline_and_a_relay_stage_the_gr
             assert rep["baseline"]["bouc_wen_shape"]["beta"] > abs(rep["baseline"]["bouc_wen_shape"]["gamma"])
 
 
+def _prandtl_ishlinskii_stage(v, rng):
+    """An asymmetric Prandtl–Ishlinskii stage (the paper's model class): 10 play operators of
+    power-law half-widths up to 9 V with exponentially falling weights, a linear and a cubic
+    reversible part, started at rest (every operator's output 0); 100 µm travel."""
+    from afmsim.hysteresis import play
+
+    widths = 10.0 * (np.arange(10) / 10.0) ** rng.uniform(1.0, 2.0)
+    weights = np.exp(-rng.uniform(0.2, 0.6) * np.arange(10)) * rng.uniform(0.5, 1.5, 10)
+    x = 0.4 * v + play(v, widths) @ weights + rng.uniform(-0.03, 0.03) * v**2 + rng.uniform(-0.002, 0.002) * v**3
+    return (x - x[0]) / np.ptp(x) * 100e-6
+
+
+@pytest.mark.parametrize("seed", [200, 201])
+def test_a_prandtl_ishlinskii_stage_gets_the_fine_play_family(seed):
+    """The relay grid puts a PI stage's operator kinks at its cell edges and misses it held out; the
+    inner split picks the fine-play family, which misses it less (seeds 200–201, never used before
+    this test; held-out gap 2.0× against the grid's 15.9×, and 4.4× against 8.7× — still above 2× on 201:
+    issue 11.3 is not met here either)."""
+    rng = np.random.default_rng(seed)
+    t, v = excitation("noise", 1000.0, 12.0, rng)
+    x = _prandtl_ishlinskii_stage(v, rng) + 8e-9 * rng.standard_normal(v.size)
+    record = load_record({"t_s": t, "v_V": v, "x_m": x})
+    rep = diagnose_record(record, candidates=[])[0]
+    assert rep["baseline"]["family"] == "play"
+    train = np.arange(record.n) < int(round(0.6 * record.n))
+    design = Design(record.t, record.v, record.x, None, train, family="preisach")
+    held, _ = design.scored()
+    grid = fit_model(design, ModelSpec(kind="preisach"))
+    grid_gap = np.sqrt(np.mean((grid.prediction - record.x)[held] ** 2)) / rep["baseline"]["noise_floor"]
+    assert rep["baseline"]["gap_to_noise"] < grid_gap, (rep["baseline"]["gap_to_noise"], grid_gap)
+
+
 @pytest.mark.parametrize("seed", [100, 101])
 def test_the_noise_floor_comes_from_where_the_drive_moves_least(seed):
     """A Preisach plant of 20 000 sharp relays under sine trains (40 s at 1 kHz, decimated 5×): every

@@ -46,7 +46,7 @@ __all__ = ["diagnose_loops", "diagnose_record", "LoopFront"]
 
 TRAIN_FRACTION = 0.6
 BASELINE_NAMES = {"preisach": "relay Preisach grid (asymmetric)", "bouc_wen": "Bouc–Wen law (Duhem class)",
-                  "symmetric": "play operators (symmetric PI)"}
+                  "play": "fine play operators + cubic (asymmetric PI)", "symmetric": "play operators (symmetric PI)"}
 #: step drives: effects live at the steps (informative blocks); creep with a resonance: each alone
 #: can leave the held-out gap no smaller, together they close it (pair lookahead)
 RULES = Rules(max_effects=3, informative_blocks=True, pair_lookahead=True)
