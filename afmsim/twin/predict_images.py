@@ -67,12 +67,12 @@ def predict_images(instrument: Instrument, trace, retrace, scan: RealScan, *, se
     noise_m = min(noise_m, 100e-9)
     scan_instrument = instrument.model_copy(update={"z_loop": instrument.z_loop.model_copy(
         update={"height_noise_nm": noise_m * 1e9})})
-    twin = _simulated(build_twin_stage(instrument), twin_z_feedback(scan_instrument), trace, scan, instrument,
-                      instrument.fast_axis.travel_um * 1e-6, seed)
+    twin = _simulated(build_twin_stage(scan_instrument), twin_z_feedback(scan_instrument), trace, scan, scan_instrument,
+                      scan_instrument.fast_axis.travel_um * 1e-6, seed)
     stock = default_stage()
     stock_travel_m = stock.x.params.sensitivity_m_per_V * stock.x.params.hysteresis.calibration_amplitude_V
     try:
-        default = _simulated(stock, ZFeedback(deflection_noise_m=noise_m), trace, scan, instrument, stock_travel_m, seed)
+        default = _simulated(stock, ZFeedback(deflection_noise_m=noise_m), trace, scan, scan_instrument, stock_travel_m, seed)
     except ValueError as error:  # the scan does not fit the default stage's travel
         default = error
     measured_rms = _rms(measured.shift_m)

@@ -570,10 +570,10 @@ class Design:
         as_good = not clearly_better(grid_residual, residual) and fit_rms <= grid_fit_rms
         chosen, chosen_residual, chosen_fit_rms = ("bouc_wen", residual, fit_rms) \
             if clearly_better(residual, grid_residual) or as_good else ("preisach", grid_residual, grid_fit_rms)
-        plays = self.hyst("play")
-        cols = np.hstack([free, plays[:, :N_PLAY_FREE]])
-        wf, wp = solve_weights(cols, plays[:, N_PLAY_FREE:], self.x, inner)
-        error = cols @ wf + plays[:, N_PLAY_FREE:] @ wp - self.x
+        play_cols = self.hyst("play")
+        cols, plays = np.hstack([free, play_cols[:, :N_PLAY_FREE]]), play_cols[:, N_PLAY_FREE:]
+        wf, wp = solve_weights(cols, plays, self.x, inner)
+        error = cols @ wf + plays @ wp - self.x
         play_residual, play_fit_rms = error[check], float(np.sqrt(np.mean(error[inner] ** 2)))
         self.level_scores["play"] = float(np.sqrt(np.mean(play_residual**2)))
         # a Prandtl–Ishlinskii model is a Preisach model with its density on lines (1-D, not 2-D):
