@@ -77,16 +77,29 @@ def test_heldout_scoring_stops_at_the_first_excursion_beyond_the_training_range(
     d = Design(np.arange(v.size) * 1e-3, v, 1e-5 * v, None, train, n_levels=16)
     scored, rule = d.scored()
     assert rule == "in_range" and scored.sum() == int(np.sum(~train & (v <= 8.08))) > 500
-    # ... unless the voltage then comes back to the range's other end: scored again from there
+    # coming back to the range's other end does not wipe an excursion above it out: relays it
+    # switched on whose down-threshold lies below the range (the grid's level below it) stay on
     v = np.r_[v, np.linspace(0, 7, 300)]
     train = np.arange(v.size) < 600
     first = 600 + int(np.argmax(v[600:] > 8.08))
     assert after_excursion(v, train).sum() == v.size - first
-    wiped = after_excursion(v, train, until_wiped=True)
-    assert wiped[first:1200].all() and not wiped[-300:].any()
     d = Design(np.arange(v.size) * 1e-3, v, 1e-5 * v, None, train, n_levels=16)
     scored, rule = d.scored()
-    assert rule == "between_excursions" and scored[-300:].all() and not scored[first:1200].any()
+    assert rule == "in_range" and scored[-300:].all()
+    # an excursion below the range is wiped out once the voltage climbs back past the up-thresholds
+    # of every relay it switched off (the range's top): the climb itself is no trained state (relays
+    # with down-thresholds between 1 V and 3 V are off, those below 1 V on: the training part never
+    # told them apart), the descent and the next climb from the top on are, and are scored
+    cycle = np.r_[np.linspace(3, 8, 300), np.linspace(8, 3, 300)]
+    v = np.r_[cycle, cycle, np.linspace(3, 1, 100), np.linspace(1, 8, 350), cycle[300:], cycle[:300]]
+    train = np.arange(v.size) < 1200
+    d = Design(np.arange(v.size) * 1e-3, v, 1e-5 * v, None, train, n_levels=16)
+    scored, rule = d.scored()
+    below = 1200 + int(np.argmax(v[1200:] < 2.95))  # the excursion leaves the range (1 % tolerance)
+    top = 1650  # the climb back reaches 8 V
+    assert rule == "wiped_excursions"
+    assert not scored[below:top - 20].any()
+    assert scored[top:].mean() > 0.95
 
 
 def test_heldout_states_the_training_part_never_determined_are_not_scored():

@@ -51,8 +51,8 @@ BASELINE_NAMES = {"preisach": "relay Preisach grid (asymmetric)", "bouc_wen": "B
 #: can leave the held-out gap no smaller, together they close it (pair lookahead)
 RULES = Rules(max_effects=3, informative_blocks=True, pair_lookahead=True)
 #: Held-out scoring rules of :meth:`.model.Design.scored` that count samples in relay states the
-#: training part does not determine (the fallbacks after ``"trained_states"``).
-UNTRAINED_SCORING = ("before_excursion", "between_excursions", "in_range")
+#: training part does not determine (the fallbacks other than ``"wiped_excursions"``).
+UNTRAINED_SCORING = ("before_excursion", "in_range")
 
 
 class LoopFront(Front):

@@ -469,20 +469,37 @@ class Design:
 
         ``"trained_states"``: inside the training voltage range, before the first held-out excursion
         beyond it, and in a relay state (on the record's grid) that the training part determines;
-        ``"before_excursion"``: the first two conditions only; ``"between_excursions"``: inside the
-        range and not between an excursion and the voltage's next visit to the range's opposite end;
-        ``"in_range"``: every held-out sample inside the range (outputs that depend on untrained
-        relays are then scored too)."""
+        ``"before_excursion"``: the first two conditions only; ``"wiped_excursions"``: inside the
+        range and in a relay state that the training part determines on the grid continued over the
+        whole recorded range (:meth:`relays_over_record`): after an excursion, once every relay it
+        switched is back in a trained state; ``"in_range"``: every held-out sample inside the range
+        (outputs that depend on untrained relays are then scored too).
+
+        ``"wiped_excursions"`` replaces a rule that scored the samples after the voltage's next
+        visit to the range's opposite end, as if that visit wiped the excursion out: relays switched
+        on above the range whose down-threshold lies below it stay on, a lasting offset that no
+        training sample determines (a Prandtl–Ishlinskii null record, docs/diagnosis.md, 217×)."""
         held = ~self.train & self.in_range
         before = held & ~after_excursion(self.v, self.train, v_min=self.v_min, v_max=self.v_max)
         trained = before & in_trained_states(self.hyst("preisach"), self.train)
         for rule, scored in (("trained_states", trained), ("before_excursion", before)):
             if scored.sum() >= MIN_SCORED:
                 return scored, rule
-        scored = held & ~after_excursion(self.v, self.train, until_wiped=True, v_min=self.v_min, v_max=self.v_max)
+        scored = held & in_trained_states(self.relays_over_record(), self.train)
         if scored.sum() >= MIN_SCORED:
-            return scored, "between_excursions"
+            return scored, "wiped_excursions"
         return held, "in_range"
+
+    def relays_over_record(self) -> np.ndarray:
+        """Relay states, unclipped, on the grid of :meth:`relays` (same cells, same level below the
+        training range) continued by whole cells up to the record's highest voltage and down to a
+        level below its lowest: the relays that only an excursion beyond the training range switches
+        are columns of their own. Without an excursion it is the record's grid."""
+        cell = (self.v_hi - self.v_lo) / self.n_levels
+        below = max(0, int(np.ceil((self.v_lo - float(self.v_min.min())) / cell - 1e-9)))
+        above = max(0, int(np.ceil((float(self.v_max.max()) - self.v_hi) / cell - 1e-9)))
+        lo = self.v_lo - (1 + below) * cell
+        return relay_features(self.fine, lo, self.v_hi + above * cell, self.n_levels + 1 + below + above, self.block)
 
     def relays(self, n_levels: int) -> np.ndarray:
         """Relay states on ``n_levels`` over the training range plus one level below it: relays
