@@ -97,8 +97,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: first for the density prior chosen by inner validation (5913d7e); 17001–17003 first for the pair
 #: lookahead of the attribution (4c6d433; 16001–16003 had shown its cases); 18001–18003 first for the
 #: fine-play baseline family (0d42b54; Prandtl–Ishlinskii null records outside the suite had shown its case);
-#: 19001–19003 first for the drive's relaxation bank in the family check (211fa9a; 18001–18003 had shown its cases).
-FRESH_SEEDS = (19001, 19002, 19003)
+#: 19001–19003 first for the drive's relaxation bank in the family check (211fa9a; 18001–18003 had shown its cases);
+#: 20001–20003 first for trained states strictly inside the training range (8fee31d;
+#: 19001–19003 had shown its case).
+FRESH_SEEDS = (20001, 20002, 20003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
