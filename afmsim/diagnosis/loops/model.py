@@ -14,8 +14,8 @@ same inner split the *family* is chosen (:meth:`Design.choose_family`): the Bouc
 (``kind="bouc_wen"``, :mod:`.bouc_wen`: Duhem class, no return-point memory, which no relay density
 fits) replaces the grid where it is clearly better, or not clearly worse while fitting
 the inner part as closely (all with a linear drift, the cross axis' motion and a bank of the
-drive's relaxations as free nuisance columns, :meth:`Design.nuisance`); with effects, the law's shape is then refitted jointly with them
-(:func:`fit_model`). Then, by the same rule against the family chosen so far, fine play operators
+drive's relaxations as free nuisance columns, :meth:`Design.nuisance`); with effects, the law's
+shape is then refitted jointly with them (:func:`fit_model`). Then, by the same rule against the family chosen so far, fine play operators
 (``kind="play"``, :func:`fine_play_features`: a Prandtl–Ishlinskii model with a cubic, the paper's
 class; a Preisach model whose density lies on lines, whose operator kinks the grid can only place
 at its cell edges). Held-out samples are scored inside the training voltage range, before the
