@@ -47,9 +47,9 @@ __all__ = ["diagnose_loops", "diagnose_record", "LoopFront"]
 TRAIN_FRACTION = 0.6
 BASELINE_NAMES = {"preisach": "relay Preisach grid (asymmetric)", "bouc_wen": "Bouc–Wen law (Duhem class)",
                   "play": "fine play operators + cubic (asymmetric PI)", "symmetric": "play operators (symmetric PI)"}
-#: step drives: effects live at the steps (informative blocks); creep with a resonance: each alone
+#: effects live at the drive's events (steps, turning points: gap-weighted blocks); creep with a resonance: each alone
 #: can leave the held-out gap no smaller, together they close it (pair lookahead)
-RULES = Rules(max_effects=3, informative_blocks=True, pair_lookahead=True)
+RULES = Rules(max_effects=3, gap_weighted_blocks=True, pair_lookahead=True)
 #: Held-out scoring rules of :meth:`.model.Design.scored` that count samples in relay states the
 #: training part does not determine (the fallbacks other than ``"wiped_excursions"``).
 UNTRAINED_SCORING = ("before_excursion", "in_range")
