@@ -70,7 +70,10 @@ def test_heldout_scoring_stops_at_the_first_excursion_beyond_the_training_range(
     t = np.arange(v.size) * 1e-3
     d = Design(t, v, 1e-5 * v, None, train, n_levels=16)
     scored, rule = d.scored()
-    assert rule == "before_excursion" and scored.sum() == first - 1000
+    # the fallback ends at the first move beyond the training range, within the tolerance or not
+    strictly = 1300 + int(np.argmax(v[1300:] > 8.0))
+    assert strictly < first
+    assert rule == "before_excursion" and scored.sum() == strictly - 1000
     # an excursion right after the split leaves fewer than 50 samples: every in-range sample counts
     v = np.r_[np.linspace(0, 8, 600), np.linspace(8, 9, 100), np.linspace(9, 0, 600)]
     train = np.arange(v.size) < 600
@@ -154,6 +157,26 @@ def test_relays_switched_just_above_the_training_range_stay_untrained_until_swit
     rep = diagnose_record(load_record(case["columns"]), candidates=[])[0]
     assert rep["baseline"]["heldout_scoring"] == "trained_states"
     assert rep["baseline"]["gap_to_noise"] <= 2.0
+
+
+def test_the_fallback_scoring_stops_at_a_hold_just_above_the_training_range():
+    """A null step record of afmsim's stage (open-world seed 22001, case 18, spent): the training
+    part determines the relay state of 1 held-out sample of 3,157, so the fallback scores the
+    samples before the first excursion. A hold 0.08 V above the training part's highest (0.9 % of
+    the range, inside the tolerance) missed the stage by 640 nm where the grid is clipped, and was
+    counted: 36× the noise. The fallback now ends at any move beyond the range."""
+    spec = case_plan()[18]
+    assert spec.category == "null"
+    case = make_case(spec, np.random.default_rng([22001, 18]))
+    assert case["plant"] == "afmsim_preisach"
+    rep, _, internals = diagnose_record(load_record(case["columns"]), candidates=[])
+    d = internals["design"]
+    scored, rule = d.scored()
+    assert rule == "before_excursion" == rep["baseline"]["heldout_scoring"]
+    top = float(d.v_max[d.train].max())
+    assert not (scored & (np.cumsum(d.v_max > top) > 0)).any()
+    assert (~d.train & (d.v_max > top) & d.in_range).any()  # the hold is inside the tolerance
+    assert rep["baseline"]["gap_to_noise"] < 10.0
 
 
 def test_a_coupling_on_afmsims_stage_is_named_when_the_held_out_part_stays_in_trained_states():
