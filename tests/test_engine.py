@@ -135,6 +135,35 @@ def test_an_implausible_value_is_not_a_finding():
     assert "Implausible: drift" in text
 
 
+class TwoCandidateFront(ToyFront):
+    """The toy front with a second candidate, ``ripple`` (a term of the record's unmodelled shape,
+    no plausible range): the case of a plausible finding behind an implausible term."""
+
+    def _columns(self, effects):
+        cols = super()._columns(effects)
+        return np.column_stack([cols, np.sin(2 * np.pi * 3.1 * T) ** 3]) if "ripple" in effects else cols
+
+    def effect_params(self, fitted, effect):
+        return super().effect_params(fitted, effect) if effect == "drift" else {}
+
+
+def test_the_verdict_leads_with_the_findings_and_keeps_every_named_effect():
+    """With ``Rules.findings_first`` (the loop front): an implausible drift (150 nm/min, bound 100) accepted first and a plausible ripple: the
+    verdict sentence names the ripple, so the verdict list leads with it and the implausible drift
+    stays on it. Where the rerun without the drift finds nothing (1 µm/min, a small ripple), the
+    list keeps the attribution's order."""
+    for rate_nm_min, ripple_m, findings, verdict in ((150.0, 100e-9, ["ripple"], ["ripple", "drift"]),
+                                                     (1000.0, 30e-9, [], ["drift", "ripple"])):
+        front = TwoCandidateFront(_record(rate=rate_nm_min * 1e-9 / 60, unmodelled=ripple_m))
+        att = attribute(front, ["drift", "ripple"], SIGMA)
+        assert list(att.accepted) == ["drift", "ripple"]  # the attribution's own order
+        out = conclude(front, att, SIGMA, ["drift", "ripple"], rules=Rules(findings_first=True))
+        assert out["findings"] == findings and [f["effect"] for f in out["implausible"]] == ["drift"]
+        assert out["verdict"] == verdict
+        # without the rule (the image front) the list keeps the attribution's order
+        assert conclude(front, att, SIGMA, ["drift", "ripple"])["verdict"] == ["drift", "ripple"]
+
+
 @pytest.mark.parametrize("effect, key, inside, outside", [
     ("creep", "gamma_per_decade", 0.015, 0.116),       # the real record's creep was 11.6 %/decade
     ("drift", "rate_m_per_s", -20e-9 / 60, 400e-9 / 60),

@@ -199,6 +199,21 @@ def test_a_large_slip_is_never_explained():
     assert rep["unexplained"]["gap_to_noise"] > 2.0
 
 
+def test_the_verdict_leads_with_creep_found_behind_an_implausible_drift():
+    """A 2.8 %/decade creep on a generalised-PI stage under steps (open-world seed 23003, case 7,
+    spent): the attribution accepts a drift of an implausible rate first; without it, creep is
+    found. The verdict sentence named creep, but the verdict list led with the drift (top-1 lost);
+    it now leads with the finding and keeps the drift behind it."""
+    spec = case_plan()[7]
+    assert spec.effects == (("creep", 3),)  # the large level, 2.8 %/decade
+    case = make_case(spec, np.random.default_rng([23003, 7]))
+    assert case["plant"] == "generalised_pi" and case["excitation"] == "steps"
+    rep, summary, _ = diagnose_record(load_record(case["columns"]))
+    assert [f["effect"] for f in rep["implausible"]] == ["drift"]
+    assert rep["findings"][0] == "creep" and rep["verdict"][:2] == ["creep", "drift"]
+    assert "missing creep" in summary
+
+
 def test_cli_open_world_suite_writes_open_world_json_and_refuses_bad_seeds(tmp_path, monkeypatch):
     # where the figures go, not the suite itself (a benchmark): the validation is replaced by a double
     import json

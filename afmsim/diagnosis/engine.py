@@ -17,7 +17,10 @@ candidates and its plots through the small :class:`Front` interface; the engine 
 2. the significance test (:func:`significance`);
 3. plausibility: an accepted effect whose fitted parameter lies outside its physical range
    (:mod:`.plausible`) is *implausible* — it absorbs another mismatch and is not a finding; the
-   attribution is run again without it, and what that run accepts are the findings;
+   attribution is run again without it, and what that run accepts are the findings. With
+   ``Rules.findings_first`` (loops) the verdict lists the findings first, then every other accepted
+   effect (implausible ones, and those not significant without them): what the verdict sentence
+   says is missing leads, and nothing the attribution named is dropped;
 4. the status (:func:`conclude`), from the held-out RMS gap relative to the sensor-noise floor σ,
    ``gap_to_noise = rms_gap / σ``, with ``HONEST_FACTOR`` = 2:
 
@@ -154,7 +157,9 @@ class Rules:
     ``gap_weighted_blocks``: the block test weighs each block by its current gap above the noise
     (:func:`significance`);
     ``pair_lookahead``: where no candidate is significant alone and the gap is above
-    ``HONEST_FACTOR`` × σ, pairs are tried (:func:`_pair_step`).
+    ``HONEST_FACTOR`` × σ, pairs are tried (:func:`_pair_step`);
+    ``findings_first``: the verdict lists the findings first, then the other accepted effects
+    (:func:`conclude`); otherwise it keeps the attribution's order.
     """
 
     max_effects: int = 3
@@ -165,6 +170,7 @@ class Rules:
     redundant: float = 0.0
     gap_weighted_blocks: bool = False
     pair_lookahead: bool = False
+    findings_first: bool = False
 
 
 class Front:
@@ -333,11 +339,15 @@ def conclude(front: Front, att: Attribution, sigma: float, candidates, *, rules:
     """Status, implausible flags, final gap and the unexplained remainder (report entries).
 
     Returns ``{"status", "verdict", "findings", "implausible", "baseline_gap", "final",
-    "unexplained"}``. ``verdict`` lists every effect ``att`` accepted. An accepted effect with an
-    implausible parameter is no candidate for the explanation: the attribution is run again
-    without it (repeatedly, while the new run accepts another implausible one), and what that run
-    accepts are the ``findings``; the status and the remainder are those of its model
-    (``final.findings_only`` when it differs from ``final``).
+    "unexplained"}``. An accepted effect with an implausible parameter is no candidate for the
+    explanation: the attribution is run again without it (repeatedly, while the new run accepts
+    another implausible one), and what that run accepts are the ``findings``; the status and the
+    remainder are those of its model (``final.findings_only`` when it differs from ``final``).
+    ``verdict`` lists every effect ``att`` accepted, in its order; with ``rules.findings_first``
+    the findings come first, then every other accepted effect in ``att``'s order: the verdict
+    sentence names the findings, so the list leads with them too (in ``att``'s order, a loop record
+    whose sentence named creep led its list with the implausible drift found first — spent
+    open-world seed 23001, case 6), and every effect the attribution named stays on it.
     """
     rms_base = rms(front.heldout_residual(att.baseline))
     base_gap = _gap(front, att.baseline, sigma, rms_base)
@@ -375,7 +385,10 @@ def conclude(front: Front, att: Attribution, sigma: float, candidates, *, rules:
         final["findings_only"] = {"effects": list(findings), "rms_gap": kept["rms_gap"],
                                   "gap_to_noise": kept["gap_to_noise"],
                                   "params": {c: kept_att.evaluations[c]["params"] for c in findings}}
-    return {"status": status, "verdict": list(att.accepted), "findings": list(findings), "implausible": flags,
+    verdict = list(att.accepted)
+    if rules.findings_first:
+        verdict = list(findings) + [c for c in verdict if c not in findings]
+    return {"status": status, "verdict": verdict, "findings": list(findings), "implausible": flags,
             "baseline_gap": base_gap, "final": final, "unexplained": unexplained}
 
 
