@@ -143,15 +143,12 @@ class TwoCandidateFront(ToyFront):
         cols = super()._columns(effects)
         return np.column_stack([cols, np.sin(2 * np.pi * 3.1 * T) ** 3]) if "ripple" in effects else cols
 
-    def effect_params(self, fitted, effect):
-        return super().effect_params(fitted, effect) if effect == "drift" else {}
-
 
 def test_the_verdict_leads_with_the_findings_and_keeps_every_named_effect():
-    """With ``Rules.findings_first`` (the loop front): an implausible drift (150 nm/min, bound 100) accepted first and a plausible ripple: the
-    verdict sentence names the ripple, so the verdict list leads with it and the implausible drift
-    stays on it. Where the rerun without the drift finds nothing (1 µm/min, a small ripple), the
-    list keeps the attribution's order."""
+    """With ``Rules.findings_first`` (the loop front): an implausible drift (150 nm/min, bound 100)
+    accepted first and a plausible ripple: the verdict sentence names the ripple, so the verdict
+    list leads with it and the implausible drift stays on it. Where the rerun without the drift
+    finds nothing (1 µm/min, a small ripple), the list keeps the attribution's order."""
     for rate_nm_min, ripple_m, findings, verdict in ((150.0, 100e-9, ["ripple"], ["ripple", "drift"]),
                                                      (1000.0, 30e-9, [], ["drift", "ripple"])):
         front = TwoCandidateFront(_record(rate=rate_nm_min * 1e-9 / 60, unmodelled=ripple_m))
