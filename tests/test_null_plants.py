@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from afmsim.diagnosis import diagnose_loops
-from afmsim.diagnosis.loops.null_plants import NULL_FAMILIES, null_plant
+from afmsim.diagnosis.loops.null_plants import NULL_FAMILIES, _relay_sum, null_plant
 from afmsim.diagnosis.loops.validation import excitation
 
 FRESH_SEED = 2026
@@ -80,3 +80,27 @@ def test_the_bouc_wen_plant_resolves_a_voltage_jump():
     x_ramp = null_plant("bouc_wen", ramp, np.random.default_rng(3))  # travel normalisation
     assert abs(x_jump[15] - x_ramp[715]) < 5e-5 * np.ptp(x_ramp)  # 5 nm of 100 µm
     assert abs(x_jump[-1] - x_ramp[-1]) < 5e-5 * np.ptp(x_ramp)
+
+
+def _relay_sum_by_definition(v, up, down, weight):
+    """Each relay stepped through every sample: on where v ≥ up, off where v ≤ down, else held."""
+    out = np.zeros(v.size)
+    for a, b, w in zip(up, down, weight):
+        on = v[0] >= a
+        for k, u in enumerate(v):
+            on = True if u >= a else False if u <= b else on
+            out[k] += w * on
+    return out
+
+
+def test_the_sorted_relay_sum_switches_every_relay_as_defined():
+    """The scattered plant's kernel visits only the relays whose thresholds a sample crosses; on a
+    voltage lattice that the thresholds share (samples landing exactly on them, repeated values)
+    it must switch each relay as the definition does."""
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        v = np.round(rng.uniform(0.0, 10.0, 400) * 4) / 4
+        up = np.round(rng.uniform(-1.0, 11.0, 200) * 4) / 4
+        down = up - np.round(rng.uniform(0.25, 3.0, 200) * 4) / 4
+        weight = rng.uniform(0.0, 1.0, 200)
+        np.testing.assert_allclose(_relay_sum(v, up, down, weight), _relay_sum_by_definition(v, up, down, weight), atol=1e-9)

