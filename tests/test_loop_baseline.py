@@ -9,7 +9,7 @@ from afmsim.diagnosis.engine import noise_floor
 from afmsim.diagnosis.loops.attribute import diagnose_record
 from afmsim.diagnosis.loops.model import (LEVEL_CHOICES, SMOOTHING_CHOICES, Design, ModelSpec, _fit_columns, after_excursion, fit_model,
                                           relay_curvature, relay_features)
-from afmsim.diagnosis.loops.null_plants import _relay_sum, null_plant
+from afmsim.diagnosis.loops.null_plants import _relay_sum, null_plant, scattered_preisach
 from afmsim.diagnosis.loops.open_world import case_plan, make_case
 from afmsim.diagnosis.loops.record import load_record
 from afmsim.diagnosis.loops.validation import excitation
@@ -288,14 +288,15 @@ def test_a_prandtl_ishlinskii_stage_gets_the_fine_play_family(seed):
 
 @pytest.mark.parametrize("seed", [100, 101])
 def test_the_noise_floor_comes_from_where_the_drive_moves_least(seed):
-    """A Preisach plant of 20 000 sharp relays under sine trains (40 s at 1 kHz, decimated 5×): every
-    sample of a moving drive switches relays, and their jumps count as noise in second differences
-    over all samples (2.6–2.7× the true σ); over the quietest tenth of the training samples the floor
+    """A Preisach plant of 20 000 sharp relays (jumps of nanometres, coarser than the scattered null
+    plant's default) under sine trains (40 s at 1 kHz, decimated 5×): every sample of a moving drive
+    switches relays, and their jumps count as noise in second differences over all samples (2.6–2.7×
+    the true σ); over the quietest tenth of the training samples the floor
     comes within 1.25× (development seeds 100–101)."""
     rng = np.random.default_rng(seed)
     t, v = excitation("sines", 1000.0, 40.0, rng)
     rec = load_record({"t_s": t, "v_V": v,
-                       "x_m": null_plant("scattered_preisach", v, rng) + 8e-9 * rng.standard_normal(v.size)})
+                       "x_m": scattered_preisach(v, rng, n_relays=20_000) + 8e-9 * rng.standard_normal(v.size)})
     train = np.arange(rec.n) < int(0.6 * rec.n)
     d = Design(rec.t, rec.v, rec.x, None, train, v_fine=rec.v_fine)
     residual = rec.x - fit_model(d, ModelSpec(kind=d.family)).prediction

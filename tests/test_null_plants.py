@@ -62,9 +62,10 @@ def test_no_named_effect_explains_a_null(null_reports):
 
 
 @pytest.mark.xfail(strict=True, reason="issue 11.3 not met: the baseline (relay grid with curvature prior and grid size by "
-                                       "inner validation, or the Bouc-Wen law where that validation prefers it; held-out "
-                                       "scoring in trained relay states) leaves 16x (generalised PI) and 8.2x (scattered "
-                                       "Preisach) the noise floor on fresh seed 2026; Bouc-Wen is within (1.0x) "
+                                       "inner validation, or the Bouc-Wen law or fine play operators where that validation "
+                                       "prefers them; held-out scoring in trained relay states) leaves 5.9x (generalised PI) "
+                                       "and 3.2x (scattered Preisach) the noise floor on fresh seed 2026; Bouc-Wen is within "
+                                       "(0.97x) "
                                        "(see docs/diagnosis.md, 'Status and honesty')")
 def test_other_hysteresis_families_come_out_nothing_missing(null_reports):
     gaps = {family: rep["baseline"]["gap_to_noise"] for family, rep in null_reports.items()}
