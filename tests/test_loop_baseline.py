@@ -291,8 +291,8 @@ def test_the_noise_floor_comes_from_where_the_drive_moves_least(seed):
     """A Preisach plant of 20 000 sharp relays (jumps of nanometres, coarser than the scattered null
     plant's default) under sine trains (40 s at 1 kHz, decimated 5×): every sample of a moving drive
     switches relays, and their jumps count as noise in second differences over all samples (2.6–2.7×
-    the true σ); over the quietest tenth of the training samples the floor
-    comes within 1.25× (development seeds 100–101)."""
+    the true σ); over the quietest tenth of the training samples the floor comes within 1.25×
+    (development seeds 100–101)."""
     rng = np.random.default_rng(seed)
     t, v = excitation("sines", 1000.0, 40.0, rng)
     rec = load_record({"t_s": t, "v_V": v,

@@ -113,10 +113,7 @@ def _relay_sum(v, up, down, weight):  # pragma: no cover - compiled
     order_up, order_down = np.argsort(up), np.argsort(down)
     up_sorted, down_sorted = up[order_up], down[order_down]
     on = v[0] >= up
-    total = 0.0
-    for i in range(up.size):
-        if on[i]:
-            total += weight[i]
+    total = weight[on].sum()
     out = np.empty(v.size)
     out[0] = total
     for k in range(1, v.size):
