@@ -11,7 +11,10 @@ A process killed outright (SIGKILL, SIGTERM, power loss) cannot clean up: its hi
 treat every ``.partial-`` folder as incomplete whatever it holds). Each staging folder holds a
 ``.lock`` file that its run keeps ``flock``-ed while it lives (the kernel drops the lock when the
 process dies, however it dies); the next :func:`run_folder` into the same parent folder removes
-every staging folder whose lock it can take, see :func:`remove_stale_staging`. Where ``fcntl`` is
+every staging folder whose lock it can take, see :func:`remove_stale_staging`. A staging folder is
+locked before it gets its ``.partial-`` name (:func:`_new_staging`), and a Ctrl-C while it is made
+is held back until the run owns it, so a run killed or interrupted at any instant leaves no
+``.partial-`` folder that the next run cannot remove. Where ``fcntl`` is
 missing (Windows) nothing is locked and stale folders are left for the user to delete.
 
 Permissions follow the user's umask, as for any file the user creates (0755/0644 under the
@@ -27,9 +30,11 @@ import os
 import platform
 import secrets
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from contextlib import contextmanager
 from importlib import metadata
@@ -138,28 +143,73 @@ def default_run_dir(kind: str, name: str, base="outputs") -> Path:
     return Path(base) / f"{kind}-{name}-{stamp}"
 
 
-def _hold_lock(staging: Path):
-    """Create ``staging/.lock`` already locked (flock'ed under a temporary name, then renamed), so a
+def _hold_lock(folder: Path):
+    """Create ``folder/.lock`` already locked (flock'ed under a temporary name, then renamed), so a
     cleaner never sees it unlocked while this process lives; returns the descriptor, or None."""
     if fcntl is None:  # pragma: no cover - Windows
         return None
-    fd, tmp = tempfile.mkstemp(dir=staging, prefix=f"{_LOCK}-")
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f"{_LOCK}-")
     fcntl.flock(fd, fcntl.LOCK_EX)
-    os.replace(tmp, staging / _LOCK)
+    os.replace(tmp, folder / _LOCK)
     return fd
 
 
+@contextmanager
+def _sigint_deferred():
+    """Hold back Ctrl-C (SIGINT) for the duration of the block and raise its ``KeyboardInterrupt``
+    after it: a step that must not be cut in two (a folder made but not yet owned) runs whole.
+    Only the main thread can set signal handlers, and only Python's default handler is replaced;
+    otherwise the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread() \
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield
+        return
+    caught = []
+    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if caught:
+        raise KeyboardInterrupt
+
+
+def _new_staging(destination: Path):
+    """A locked staging folder for ``destination``: ``(path, lock descriptor or None)``.
+
+    The folder is made and locked under a name no run writes into (``.NAME.prep-XXXXXXXX``) and
+    only then renamed to its ``.partial-`` name, so a ``.partial-`` folder has its held ``.lock``
+    from its first moment: a run killed at any instant leaves no ``.partial-`` folder that the next
+    run cannot tell from a live one (a kill inside the few system calls before the rename leaves a
+    hidden ``.prep-`` folder that holds no output; with its ``.lock`` in place, the next run
+    removes it)."""
+    prep, _ = _create_unique(destination.parent, f".{destination.name}.prep-", lambda p: os.mkdir(p, 0o777))
+    lock = None
+    try:
+        lock = _hold_lock(prep)
+        staging = prep.with_name(prep.name.replace(".prep-", ".partial-", 1))
+        os.rename(prep, staging)
+    except BaseException:
+        if lock is not None:
+            os.close(lock)
+        shutil.rmtree(prep, ignore_errors=True)
+        raise
+    return staging, lock
+
+
 def remove_stale_staging(parent) -> list[Path]:
-    """Remove the hidden ``.*.partial-*`` staging folders in ``parent`` left by runs that died.
+    """Remove the hidden ``.*.partial-*`` staging folders (and ``.*.prep-*`` ones, see
+    :func:`_new_staging`) in ``parent`` left by runs that died.
 
     A folder is removed only when its ``.lock`` can be locked, i.e. no live process holds it; a
-    folder without ``.lock`` (a run in its last microseconds, or not made by afmsim) is left alone.
-    Returns the folders removed.
+    folder without ``.lock`` (a run in its first or last microseconds, or not made by afmsim) is
+    left alone. Returns the folders removed.
     """
     removed = []
     if fcntl is None:  # pragma: no cover - Windows
         return removed
-    for folder in sorted(Path(parent).glob(".*.partial-*")):
+    parent = Path(parent)
+    for folder in sorted([*parent.glob(".*.partial-*"), *parent.glob(".*.prep-*")]):
         try:
             fd = os.open(folder / _LOCK, os.O_RDONLY)
         except OSError:
@@ -191,11 +241,11 @@ def run_folder(destination, *, config: dict, seed: int, command: str, extra: dic
         raise FileExistsError(f"output folder {destination} already exists: choose another --out or remove it")
     destination.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_staging(destination.parent)
-    staging, _ = _create_unique(destination.parent, f".{destination.name}.partial-", lambda p: os.mkdir(p, 0o777))
-    lock = None
+    staging = lock = None
     started = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     try:
-        lock = _hold_lock(staging)
+        with _sigint_deferred():  # a Ctrl-C here lands once `staging` names the folder to remove
+            staging, lock = _new_staging(destination)
         yield staging
         write_json(staging / "manifest.json", {
             "command": command, "config": config, "seed": seed, "versions": versions(),
@@ -207,7 +257,8 @@ def run_folder(destination, *, config: dict, seed: int, command: str, extra: dic
             (staging / _LOCK).unlink()  # still held through the descriptor until the rename is done
         os.replace(staging, destination)
     except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
+        if staging is not None:
+            shutil.rmtree(staging, ignore_errors=True)
         raise
     finally:
         if lock is not None:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from afmsim import runio
 from afmsim.runio import remove_stale_staging, replace_atomically, run_folder, write_json
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -99,6 +100,50 @@ def test_stale_cleanup_spares_live_runs_and_foreign_folders(tmp_path):
         assert remove_stale_staging(tmp_path) == []
         assert staging.is_dir() and foreign.is_dir()
     assert sorted(p.name for p in tmp_path.iterdir()) == [".x.partial-foreign", "live"]
+
+
+def test_a_staging_folder_is_locked_before_it_is_named_partial(tmp_path, monkeypatch):
+    """Every ``.partial-`` folder has its held ``.lock`` from its first moment: at the instant it
+    appears under that name (its rename) a cleaner cannot remove it, and a run killed at that
+    instant (CI under load hit the window between the folder's mkdir and its lock) is cleaned up
+    by the next one."""
+    seen = []
+    rename = os.rename
+
+    def watching_rename(src, dst):
+        rename(src, dst)
+        seen.append((Path(dst).name, (Path(dst) / ".lock").is_file(), remove_stale_staging(tmp_path)))
+
+    monkeypatch.setattr(runio.os, "rename", watching_rename)
+    with run_folder(tmp_path / "o", config={}, seed=0, command="test"):
+        pass
+    assert len(seen) == 1 and seen[0][0].startswith(".o.partial-") and seen[0][1:] == (True, [])
+    # a run that died right after making its (locked) prep folder: the next run removes it
+    dead = tmp_path / ".p.prep-deadbeef"
+    dead.mkdir()
+    (dead / ".lock").touch()
+    with run_folder(tmp_path / "next", config={}, seed=0, command="test"):
+        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["next", "o"]
+
+
+def test_a_ctrl_c_while_the_staging_folder_is_made_leaves_nothing(tmp_path, monkeypatch):
+    """SIGINT delivered as the staging folder has just been made, before ``run_folder`` holds its
+    name (the other window CI under load hit): the interrupt is held back until the run owns the
+    folder, then raised, and the folder is removed."""
+    make = runio._new_staging
+
+    def interrupted(destination):
+        made = make(destination)
+        os.kill(os.getpid(), signal.SIGINT)  # handled at the next bytecode, before `made` is returned
+        return made
+
+    monkeypatch.setattr(runio, "_new_staging", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        with run_folder(tmp_path / "o", config={}, seed=0, command="test"):
+            pytest.fail("the run body must not start after a Ctrl-C")
+    assert list(tmp_path.iterdir()) == []
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
 @pytest.mark.parametrize("umask, folder_mode, file_mode", [(0o022, 0o755, 0o644), (0o002, 0o775, 0o664),
