@@ -1,9 +1,9 @@
 """Null records from hysteresis families other than the baseline's (issue 11, point 3).
 
 The generators (:mod:`afmsim.diagnosis.loops.null_plants`) are checked to be rate-independent and
-hysteretic; the diagnosis of their records (no added effect) must never call a named effect the
-explanation, and — the target, not met yet — should find nothing missing. Seed 2026 was not used
-while developing (development seeds: 100–103).
+hysteretic; the diagnosis of their records (no added effect) must name no effect (not met on the
+scattered-Preisach record: a strict xfail) and — the target, not met yet — should find nothing
+missing. Seed 2026 was not used while developing (development seeds: 100–103).
 """
 
 import numpy as np
@@ -54,18 +54,28 @@ def test_a_bouc_wen_null_gets_the_bouc_wen_baseline_and_nothing_missing(null_rep
     assert rep["status"] == "nothing_missing" and rep["baseline"]["gap_to_noise"] <= 2.0
 
 
-def test_no_named_effect_explains_a_null(null_reports):
+def test_no_effect_is_named_on_a_bouc_wen_or_generalised_pi_null(null_reports):
+    for family in ("bouc_wen", "generalised_pi"):
+        assert null_reports[family]["verdict"] == [], family
     for family, rep in null_reports.items():
-        assert rep["status"] != "explained", (family, rep["verdict"])
         if rep["status"] == "nothing_missing":
-            assert rep["baseline"]["gap_to_noise"] <= 2.0
+            assert rep["baseline"]["gap_to_noise"] <= 2.0, family
 
 
-@pytest.mark.xfail(strict=True, reason="issue 11.3 not met: the baseline (relay grid with curvature prior and grid size by "
-                                       "inner validation, or the Bouc-Wen law or fine play operators where that validation "
-                                       "prefers them; held-out scoring in trained relay states) leaves 5.9x (generalised PI) "
-                                       "and 3.2x (scattered Preisach) the noise floor on fresh seed 2026; Bouc-Wen is within "
-                                       "(0.97x) "
+@pytest.mark.xfail(strict=True, reason="issue 11.3 not met: on fresh seed 2026 the scattered-Preisach null gets a drift "
+                                       "named (its held-out shrink 14 %, 2.1x -> 1.8x the noise floor, so the record "
+                                       "reads 'explained'); the 16/24-level grid named it too (3.2x -> 2.9x, 'partly "
+                                       "explained', which an earlier form of this test let pass) "
+                                       "(see docs/diagnosis.md, 'Status and honesty')")
+def test_no_effect_is_named_on_a_scattered_preisach_null(null_reports):
+    assert null_reports["scattered_preisach"]["verdict"] == []
+
+
+@pytest.mark.xfail(strict=True, reason="issue 11.3 not met: the baseline (32-level relay grid with its density prior, "
+                                       "the Bouc-Wen law or fine play operators, chosen by generalised cross-validation "
+                                       "on the training part; held-out scoring in trained relay states) leaves 4.2x "
+                                       "(generalised PI) and 2.1x (scattered Preisach) the noise floor on fresh seed "
+                                       "2026; Bouc-Wen is within (0.99x) "
                                        "(see docs/diagnosis.md, 'Status and honesty')")
 def test_other_hysteresis_families_come_out_nothing_missing(null_reports):
     gaps = {family: rep["baseline"]["gap_to_noise"] for family, rep in null_reports.items()}

@@ -9,10 +9,10 @@ Protocol of :func:`diagnose_loops`:
    first such excursion, are not scored (no rate-independent model can know untrained relays, and
    relays an excursion switched stay switched); where that leaves fewer than 50 samples, every
    in-range held-out sample is scored; the scored fraction and the rule are reported;
-2. baseline = rate-independent hysteresis (relay Preisach grid with its size chosen by inner
-   validation on the training part, or the Bouc–Wen law where that inner validation prefers it
-   (:meth:`~afmsim.diagnosis.loops.model.Design.choose_family`); play operators with ``baseline="symmetric"``) + offset + linear term, fitted on
-   the training part;
+2. baseline = rate-independent hysteresis (relay Preisach grid with its prior's weight, or the
+   Bouc–Wen law, or fine play operators, whichever has the smallest generalised cross-validation
+   score on the training part (:meth:`~afmsim.diagnosis.loops.model.Design.choose_family`); play
+   operators with ``baseline="symmetric"``) + offset + linear term, fitted on the training part;
 3. the held-out residual is localised (:func:`~afmsim.diagnosis.loops.localise.localise`);
 4. greedy attribution by the shared engine (:mod:`~afmsim.diagnosis.engine`): each remaining
    candidate is added to the current model, fitted on the training part, and scored on the
@@ -136,7 +136,7 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                      "relay_levels": d.n_levels if front.kind == "preisach" else None,
                      "relay_smoothing": d.smoothing if front.kind == "preisach" else None,
                      "bouc_wen_shape": d.bouc_wen_shape.as_dict() if front.kind == "bouc_wen" else None,
-                     "inner_rms_by_levels": {str(k): v for k, v in d.level_scores.items()},
+                     "model_choice_scores": {str(k): v for k, v in d.choice_scores.items()},
                      "heldout_scoring": scoring, "drive_polarity": int(d.polarity),
                      "travel": float(np.ptp(rec.x)), "modelled": list(modelled)},
         "where": front.localise(base),

@@ -16,8 +16,8 @@ minimises the training error (a coarse grid, then Nelder–Mead). A decimated re
 integrated on the full-rate voltage and block-averaged, as the relay features are.
 
 :meth:`afmsim.diagnosis.loops.model.Design.choose_family` takes this family instead of the grid
-when, on the inner validation part of the training record, it is clearly better, or not clearly
-worse while fitting the inner fit part as closely.
+when its generalised cross-validation score on the training part is the smaller (df: its columns
+plus the three shape parameters).
 """
 
 from __future__ import annotations

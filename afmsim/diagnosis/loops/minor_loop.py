@@ -34,7 +34,7 @@ from scipy.signal import lfilter, lfilter_zi
 from afmsim.reproducible import single_blas_thread
 
 from ..engine import rms
-from .model import N_LEVELS, creep_taus, drive_polarity, lag_filter, relay_features, solve_weights
+from .model import creep_taus, drive_polarity, lag_filter, relay_features, solve_weights
 
 __all__ = ["minor_loop_law", "minor_loop_excitation", "interior_reversals", "LAWS", "DECISIVE_RATIO"]
 
@@ -43,6 +43,9 @@ LAWS = ("preisach", "duhem")
 DECISIVE_RATIO = 1.15
 MIN_INTERIOR_REVERSALS = 4
 N_KNOTS = 16
+#: Relay-grid size of the Preisach law (the loop diagnosis baseline's grid before it became finer:
+#: the law comparison was validated with it).
+N_LEVELS = 16
 #: Duhem relaxation grid: constant part a (per unit of the normalised input) and the 1/û part p.
 RATE_GRID = (0.3, 1.0, 2.0, 4.0, 8.0, 16.0)
 INVERSE_GRID = (0.0, 0.5, 1.5)
@@ -206,7 +209,7 @@ def minor_loop_law(t, v, x, train, sigma: float) -> dict:
     vn = (vc - 0.5 * (lo + hi)) / span
     creep = _creep_columns(vn, creep_taus(dt, float(t[train].max() - t[0])), dt)
     free = np.column_stack([np.ones_like(v), vn, creep])
-    relays = drive_polarity(v, x, train) * np.hstack([relay_features(vc, lo, hi), latched_relays(vc, lo, hi)])
+    relays = drive_polarity(v, x, train) * np.hstack([relay_features(vc, lo, hi, N_LEVELS), latched_relays(vc, lo, hi)])
     preisach = _predict(free, relays, x, train)
     duhem, rate, inverse = _fit_duhem(vc, lo, hi, x, train, creep)
     gaps = {"preisach": rms((preisach - x)[held]), "duhem": rms((duhem - x)[held])}

@@ -105,8 +105,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: scoring that ends at any move beyond the training range (2841b99; 22001–22003 had shown its case);
 #: 24001–24003 first for the verdict led by the findings (3d566e7; 23001–23003 had shown its case);
 #: 25001–25003 first for the scattered-Preisach plant with jumps below the noise floor (349d92d; a
-#: change of the validation plant, measured on spent records of 20001–24003).
-FRESH_SEEDS = (25001, 25002, 25003)
+#: change of the validation plant, measured on spent records of 20001–24003); 26001–26003 first for
+#: the 32-level grid with its prior and the family chosen by generalised cross-validation (measured
+#: on spent records of 24001–25003).
+FRESH_SEEDS = (26001, 26002, 26003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
