@@ -15,7 +15,7 @@ which no relay density fits) or fine play operators
 (``kind="play"``, :func:`fine_play_features`: a Prandtl–Ishlinskii model with a cubic, the paper's
 class; a Preisach model whose density lies on lines, whose operator kinks the grid can only place
 at its cell edges), each with a linear drift, the cross axis' motion and a bank of the drive's
-relaxations as free nuisance columns (:meth:`Design.nuisance`); with effects, the Bouc–Wen law's
+relaxations as free nuisance columns (:attr:`Design.nuisance`); with effects, the Bouc–Wen law's
 shape is then refitted jointly with them (:func:`fit_model`). Held-out samples are scored inside
 the training voltage range, before the first held-out excursion beyond it, and in relay states
 that the training part determines (:meth:`Design.scored`, :func:`untrained_state`). ``kind="symmetric"`` uses play
@@ -60,6 +60,7 @@ jointly with the effect):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -317,7 +318,7 @@ def creep_taus(dt: float, span: float) -> np.ndarray:
 
 
 def relaxation_taus(dt: float, span: float) -> np.ndarray:
-    """Time constants (s) of :meth:`Design.nuisance`'s relaxation bank: log-spaced, about one per
+    """Time constants (s) of :attr:`Design.nuisance`'s relaxation bank: log-spaced, about one per
     decade, from ``dt`` to the training ``span`` (at least two)."""
     hi = max(span, 2 * dt)
     return np.geomspace(dt, hi, max(int(np.floor(np.log10(hi / dt))) + 1, 2))
@@ -544,11 +545,11 @@ class Design:
 
     def choose_smoothing(self) -> float:
         """Weight of the relay density's smoothness prior: the one of :data:`SMOOTHING_CHOICES`
-        whose fit on the whole training part (with the :meth:`nuisance` columns free) has the
+        whose fit on the whole training part (with the :attr:`nuisance` columns free) has the
         smallest generalised cross-validation score ``GCV = m·RSS / (m − df)²`` (:func:`gcv`; ties
         to the stiffer prior); the held-out part is never looked at. ``choice_scores["gcv_preisach@<w>"]``:
         √GCV (m) per weight; the chosen fit's RSS and df are kept for :meth:`choose_family`."""
-        free = np.hstack([self.free, self.nuisance()])
+        free = np.hstack([self.free, self.nuisance])
         relays, curvature = self.hyst("preisach"), relay_curvature(self.n_levels + 1)
         best = None
         for smoothing in SMOOTHING_CHOICES:
@@ -573,7 +574,7 @@ class Design:
         """Hysteresis family of the baseline — the relay grid (``"preisach"``), the Bouc–Wen law
         (``"bouc_wen"``, :mod:`.bouc_wen`) or fine play operators (``"play"``,
         :func:`fine_play_features`) — by generalised cross-validation on the whole training part:
-        each family is fitted there (with the :meth:`nuisance` columns free) and scored by
+        each family is fitted there (with the :attr:`nuisance` columns free) and scored by
         ``GCV = m·RSS / (m − df)²`` (m training samples; df the fit's effective parameter count,
         :func:`solve_weights` ``with_df``: the trace of its hat matrix on the non-negative
         solution's active set, so the density prior's shrinkage counts; the Bouc–Wen law's columns
@@ -590,7 +591,7 @@ class Design:
         weights: see docs/diagnosis.md ("The family chosen by generalised cross-validation").
         ``choice_scores["gcv_<family>"]``: √GCV (m); ``choice_scores["df_<family>"]``: its df."""
         m = int(self.train.sum())
-        nuisance = self.nuisance()
+        nuisance = self.nuisance
         free = np.hstack([self.free, nuisance])
         scores = {"preisach": self._grid_fit}
         u = self.normalised_voltage()
@@ -609,8 +610,9 @@ class Design:
             self.choice_scores[f"df_{family}"] = float(df)
         return min(("bouc_wen", "play", "preisach"), key=score.get)  # listed smallest model first: ties go to it
 
+    @cached_property
     def nuisance(self) -> np.ndarray:
-        """Free columns of every family's fit in :meth:`choose_family`: a linear drift in time; with a
+        """Free columns (computed once per record) of every family's fit in :meth:`choose_family`: a linear drift in time; with a
         cross axis, its measured motion (the drift and cross-coupling candidates' first terms); and
         a bank of first-order relaxations of the drive, ``LP_τ(v) − v`` for τ log-spaced (about one per decade) from
         the sample interval to the training span (:func:`relaxation_taus`; linear stand-ins for
@@ -749,6 +751,51 @@ def _train_mse(d: Design, fitted: FittedModel) -> float:
     return float(np.mean((fitted.prediction - d.x)[d.train] ** 2))
 
 
+class _LagFits:
+    """Fits of one model's columns on the training part, one per dynamics lag, cached: the lag
+    search and the final fit share them (:func:`_fit_columns`).
+
+    ``hyst_cols``: the hysteresis columns, their first ``n_free_h`` free (offset, linear, the
+    Bouc–Wen law's), the rest non-negative (relays, plays; ``smooth``: the relay density's prior);
+    ``extra``: the effects' own free columns; ``creep``: fit the creep bank too. Calling it with a
+    lag ``(discretisation, τ, mode)`` or None returns ``(prediction, free weights, positive
+    weights, hysteresis part, creep)`` with ``creep = (bank weights, τs)`` or None."""
+
+    def __init__(self, d: Design, hyst_cols: np.ndarray, smooth, n_free_h: int, extra: np.ndarray, *, creep: bool):
+        self.d, self.hyst_cols, self.smooth, self.n_free_h, self.extra, self.creep = d, hyst_cols, smooth, n_free_h, extra, creep
+        self.n_pos_h = hyst_cols.shape[1] - n_free_h
+        self.fits: dict = {}
+
+    def __call__(self, lag):
+        if lag not in self.fits:
+            self.fits[lag] = self.fit(lag)
+        return self.fits[lag]
+
+    def solve(self, lag, creep_basis=None):
+        """One least-squares fit with the lag's filters applied to every column (creep bank included)."""
+        d, nf = self.d, self.n_free_h
+        cols = self.hyst_cols if creep_basis is None else np.hstack([self.hyst_cols, creep_basis])
+        for b, a in dynamics_filters(lag, d.dt) if lag is not None else []:
+            cols = _filt(b, a, cols)
+        free = np.hstack([cols[:, :nf], self.extra])
+        pos = cols[:, nf:]
+        wf, wp = solve_weights(free, pos, d.x, d.train, smooth=self.smooth, smoothing=d.smoothing)
+        hyst_part = self.hyst_cols[:, :nf] @ wf[:nf] + self.hyst_cols[:, nf:] @ wp[:self.n_pos_h]
+        return free @ wf + pos @ wp, wf, wp, hyst_part
+
+    def fit(self, lag):
+        """The fit with the lag; with the creep bank, alternated three times with the hysteresis
+        (the bank relaxes the fitted hysteresis part: bilinear)."""
+        pred, wf, wp, hpart = self.solve(lag)
+        if not self.creep:
+            return pred, wf, wp, hpart, None
+        taus = creep_taus(self.d.dt, self.d.span_train)
+        for _ in range(3):
+            basis = np.column_stack([_filt(*lag_filter(tau, self.d.dt), hpart[:, None])[:, 0] - hpart for tau in taus])
+            pred, wf, wp, hpart = self.solve(lag, basis)
+        return pred, wf, wp, hpart, (wp[self.n_pos_h:], taus)
+
+
 def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
     """:func:`fit_model` with the hysteresis columns ``hf``; returns ``(fitted, transform, extra)``:
     what the effects make of the hysteresis columns for a shape search (the creep bank's
@@ -779,51 +826,11 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
     params: dict = {}
     n_params = hyst_cols.shape[1] + extra.shape[1] + (3 if kind == "bouc_wen" else 0)  # + β, γ, n
 
-    def fitter(hyst_cols, smooth):
-        """``fitted(lag)`` on the hysteresis columns ``hyst_cols`` (free columns first), cached per lag."""
-        n_pos_h = hyst_cols.shape[1] - n_free_h
-
-        def run(lag, creep_basis=None):
-            cols = hyst_cols
-            if creep_basis is not None:
-                cols = np.hstack([hyst_cols, creep_basis])
-            for b, a in dynamics_filters(lag, d.dt) if lag is not None else []:
-                cols = _filt(b, a, cols)
-            free = np.hstack([cols[:, :n_free_h], extra])
-            pos = cols[:, n_free_h:]
-            wf, wp = solve_weights(free, pos, d.x, d.train, smooth=smooth, smoothing=d.smoothing)
-            pred = free @ wf + pos @ wp
-            hyst_part = hyst_cols[:, :n_free_h] @ wf[:n_free_h] + hyst_cols[:, n_free_h:] @ wp[:n_pos_h]
-            return pred, wf, wp, hyst_part
-
-        def creep_cols(hpart, taus):
-            return np.column_stack([_filt(*lag_filter(tau, d.dt), hpart[:, None])[:, 0] - hpart for tau in taus])
-
-        def fit_with(lag):
-            pred, wf, wp, hpart = run(lag)
-            creep = None
-            if "creep" in eff:
-                taus = creep_taus(d.dt, d.span_train)
-                for _ in range(3):
-                    basis = creep_cols(hpart, taus)
-                    pred, wf, wp, hpart_new = run(lag, basis)
-                    c = wp[n_pos_h:]
-                    hpart = hpart_new
-                creep = (c, taus)
-            return pred, wf, wp, hpart, creep
-
-        fits = {}  # (discretisation, τ, mode) → fit_with's result: the search and the final fit share them
-
-        def fitted(lag):
-            if lag not in fits:
-                fits[lag] = fit_with(lag)
-            return fits[lag]
-        return fitted
-
-    fitted = fitter(hyst_cols, smooth)
+    fitted = _LagFits(d, hyst_cols, smooth, n_free_h, extra, creep="creep" in eff)
     # the lag and resonance search runs on the coarse grid when the record's grid is finer (the same
     # fit, a quarter of the relays; the search's dozens of refits dominate the diagnosis time)
-    search = fitter(np.hstack([d.free, d.relays(SEARCH_LEVELS)]), relay_curvature(SEARCH_LEVELS + 1)) \
+    search = _LagFits(d, np.hstack([d.free, d.relays(SEARCH_LEVELS)]), relay_curvature(SEARCH_LEVELS + 1), n_free_h,
+                      extra, creep="creep" in eff) \
         if kind == "preisach" and "dynamics" in eff and d.n_levels > SEARCH_LEVELS else fitted
 
     lag = None
