@@ -161,6 +161,32 @@ def test_the_verdict_leads_with_the_findings_and_keeps_every_named_effect():
         assert conclude(front, att, SIGMA, ["drift", "ripple"])["verdict"] == ["drift", "ripple"]
 
 
+class HeldoutOnlyFront(ToyFront):
+    """The toy front with a candidate ``later`` that changes the prediction on the held-out part
+    only (a fixed offset after the training part; one parameter): it can shrink the held-out gap
+    without any support in the data it was fitted to."""
+
+    def fit(self, effects, start=None):
+        fitted = super().fit(tuple(e for e in effects if e != "later"))
+        if "later" in effects:
+            fitted = {"effects": tuple(effects), "w": np.r_[fitted["w"], 1.0], "pred": fitted["pred"] + 6 * SIGMA * ~TRAIN}
+        return fitted
+
+
+def test_with_training_support_a_term_that_only_moves_the_held_out_part_is_refused():
+    x = _record()
+    x[~TRAIN] += 6 * SIGMA  # the baseline's held-out part is off by 6 σ: the candidate matches it
+    front = HeldoutOnlyFront(x)
+    assert attribute(front, ["later"], SIGMA).accepted == ("later",)
+    att = attribute(front, ["later"], SIGMA, rules=Rules(training_support=True))
+    assert att.accepted == () and att.evaluations["later"]["test"]["delta_bic"] < -6
+    assert att.evaluations["later"]["test"]["train_delta_bic"] == pytest.approx(np.log(TRAIN.sum()), abs=1e-3)
+    # a drift through the whole record is supported by the training part as well and still named
+    drift = ToyFront(_record(rate=20e-9 / 60))
+    att = attribute(drift, ["drift"], SIGMA, rules=Rules(training_support=True))
+    assert att.accepted == ("drift",) and att.evaluations["drift"]["test"]["train_delta_bic"] < -6
+
+
 @pytest.mark.parametrize("effect, key, inside, outside", [
     ("creep", "gamma_per_decade", 0.015, 0.116),       # the real record's creep was 11.6 %/decade
     ("drift", "rate_m_per_s", -20e-9 / 60, 400e-9 / 60),

@@ -1,9 +1,12 @@
 """Null records from hysteresis families other than the baseline's (issue 11, point 3).
 
 The generators (:mod:`afmsim.diagnosis.loops.null_plants`) are checked to be rate-independent and
-hysteretic; the diagnosis of their records (no added effect) must name no effect (not met on the
-scattered-Preisach record: a strict xfail) and — the target, not met yet — should find nothing
-missing. Seed 2026 was not used while developing (development seeds: 100–103).
+hysteretic; the diagnosis of their records (no added effect) must name no effect and — the
+target, not met yet — should find nothing missing. Seed 2026 was not used while developing the
+baseline (development seeds: 100–103); its scattered-Preisach record's false drift (held-out
+shrink 14 %, training RMS unchanged) prompted the training-support rule of the attribution
+(:attr:`afmsim.diagnosis.engine.Rules.training_support`), so that record is a regression check of
+the rule now, not evidence for it (the open-world suite's fresh seeds are).
 """
 
 import numpy as np
@@ -54,21 +57,20 @@ def test_a_bouc_wen_null_gets_the_bouc_wen_baseline_and_nothing_missing(null_rep
     assert rep["status"] == "nothing_missing" and rep["baseline"]["gap_to_noise"] <= 2.0
 
 
-def test_no_effect_is_named_on_a_bouc_wen_or_generalised_pi_null(null_reports):
-    for family in ("bouc_wen", "generalised_pi"):
-        assert null_reports[family]["verdict"] == [], family
+def test_no_effect_is_named_on_a_null_of_another_family(null_reports):
     for family, rep in null_reports.items():
+        assert rep["verdict"] == [], family
         if rep["status"] == "nothing_missing":
             assert rep["baseline"]["gap_to_noise"] <= 2.0, family
 
 
-@pytest.mark.xfail(strict=True, reason="issue 11.3 not met: on fresh seed 2026 the scattered-Preisach null gets a drift "
-                                       "named (its held-out shrink 14 %, 2.1x -> 1.8x the noise floor, so the record "
-                                       "reads 'explained'); the 16/24-level grid named it too (3.2x -> 2.9x, 'partly "
-                                       "explained', which an earlier form of this test let pass) "
-                                       "(see docs/diagnosis.md, 'Status and honesty')")
-def test_no_effect_is_named_on_a_scattered_preisach_null(null_reports):
-    assert null_reports["scattered_preisach"]["verdict"] == []
+def test_the_scattered_null_drift_shrinks_the_held_out_gap_but_not_the_training_part(null_reports):
+    """The drift that this record once got named: it still passes the held-out tests, and the
+    training part refuses it (training ΔBIC > 0), which the report shows."""
+    drift = next(e for e in null_reports["scattered_preisach"]["effects"] if e["name"] == "drift")
+    assert drift["heldout_shrink"] > 0.05 and not drift["significant"]
+    assert drift["test"]["delta_bic"] < -6 and drift["test"]["blocks_improved"] >= 0.7  # held out: would pass
+    assert drift["test"]["train_delta_bic"] > 0
 
 
 @pytest.mark.xfail(strict=True, reason="issue 11.3 not met: the baseline (32-level relay grid with its density prior, "

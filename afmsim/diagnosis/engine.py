@@ -47,7 +47,7 @@ import numpy as np
 
 from .plausible import implausible
 
-__all__ = ["Front", "Rules", "Attribution", "attribute", "significance", "noise_floor", "flattest_noise", "decorrelation_length", "conclude",
+__all__ = ["Front", "Rules", "Attribution", "attribute", "significance", "training_delta_bic", "noise_floor", "flattest_noise", "decorrelation_length", "conclude",
            "verdict_text", "READINGS", "effect_lines", "ratio_text", "rms", "HONEST_FACTOR", "STATUSES"]
 
 HONEST_FACTOR = 2.0
@@ -144,6 +144,16 @@ def significance(r0, r1, sigma, k_extra, *, n_blocks=10, gap_weighted_blocks=Fal
             "significant": ok}
 
 
+def training_delta_bic(r0, r1, k_extra) -> float:
+    """ΔBIC of a candidate on the *training* part: ``n_eff·ln(RSS₁/RSS₀) + k_extra·ln(n_eff)``,
+    ``r0``/``r1`` the training residuals without/with the candidate, ``n_eff = n / L`` (L: the
+    decorrelation length of ``r0``). Below 0 where the candidate pays for its parameters on the
+    data it was fitted to (:attr:`Rules.training_support`)."""
+    rss0, rss1 = float(np.sum(r0**2)), float(np.sum(r1**2))
+    n_eff = max(r0.size / decorrelation_length(r0), 5.0)
+    return float(n_eff * np.log(max(rss1, 1e-300) / max(rss0, 1e-300)) + k_extra * np.log(n_eff))
+
+
 @dataclass(frozen=True)
 class Rules:
     """Acceptance rules beyond :func:`significance` (a front's practical-significance knobs).
@@ -159,7 +169,13 @@ class Rules:
     ``pair_lookahead``: where no candidate is significant alone and the gap is above
     ``HONEST_FACTOR`` × σ, pairs are tried (:func:`_pair_step`);
     ``findings_first``: the verdict lists the findings first, then the other accepted effects
-    (:func:`conclude`); otherwise it keeps the attribution's order.
+    (:func:`conclude`); otherwise it keeps the attribution's order;
+    ``training_support``: a candidate (and a pair, and each pair member on top of the other) must
+    also pay for its parameters on the training part it was fitted to (:func:`training_delta_bic`
+    < 0; fronts with :meth:`Front.train_residual`). An effect present through the record explains
+    training data the baseline cannot; a term that does not, yet shrinks the held-out gap, corrects
+    the baseline's extrapolation by coincidence (a drift on a scattered-Preisach null record:
+    training RMS unchanged to 0.1 %, training ΔBIC +12.9, held-out shrink 14 %).
     """
 
     max_effects: int = 3
@@ -171,6 +187,7 @@ class Rules:
     gap_weighted_blocks: bool = False
     pair_lookahead: bool = False
     findings_first: bool = False
+    training_support: bool = False
 
 
 class Front:
@@ -217,6 +234,17 @@ class Attribution:
     evaluations: dict = field(default_factory=dict)
 
 
+def _with_training_support(front: Front, test: dict, before, after, k_extra: int, rules: Rules) -> dict:
+    """``test`` with the training-part ΔBIC of ``after`` over ``before`` added and required
+    (:attr:`Rules.training_support`; unchanged where the rule is off or the front has no training residual)."""
+    r0 = front.train_residual(before) if rules.training_support else None
+    if r0 is None:
+        return test
+    test["train_delta_bic"] = training_delta_bic(r0, front.train_residual(after), k_extra)
+    test["significant"] = bool(test["significant"] and test["train_delta_bic"] < 0)
+    return test
+
+
 def _round(test: dict) -> dict:
     return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in test.items()}
 
@@ -248,8 +276,9 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
                 continue
             fit = front.fit(current + (c,), cur_fit)
             r1 = front.heldout_residual(fit)
-            test = significance(cur_r, r1, sigma, max(front.n_params(fit) - front.n_params(cur_fit), 1),
-                                gap_weighted_blocks=rules.gap_weighted_blocks)
+            k_extra = max(front.n_params(fit) - front.n_params(cur_fit), 1)
+            test = significance(cur_r, r1, sigma, k_extra, gap_weighted_blocks=rules.gap_weighted_blocks)
+            test = _with_training_support(front, test, cur_fit, fit, k_extra, rules)
             if rules.min_step or rules.min_baseline_share:
                 test["baseline_share"] = float((np.mean(cur_r**2) - np.mean(r1**2)) / ms_base) if ms_base > 0 else 0.0
                 test["significant"] = bool(test["significant"] and test["baseline_share"] >= rules.min_baseline_share
@@ -306,15 +335,18 @@ def _pair_step(front: Front, current: tuple, cur_fit, cur_r, trial: dict, sigma:
     for a, b in itertools.combinations(list(trial), 2):
         fit = front.fit(current + (a, b), cur_fit)
         r = front.heldout_residual(fit)
-        test = significance(cur_r, r, sigma, max(front.n_params(fit) - front.n_params(cur_fit), 2),
-                            gap_weighted_blocks=rules.gap_weighted_blocks)
+        k_extra = max(front.n_params(fit) - front.n_params(cur_fit), 2)
+        test = significance(cur_r, r, sigma, k_extra, gap_weighted_blocks=rules.gap_weighted_blocks)
+        test = _with_training_support(front, test, cur_fit, fit, k_extra, rules)
         if not test["significant"] or (best is not None and test["delta_bic"] >= best[3]["pair"]["delta_bic"]):
             continue
         tests = {"pair": test}
         for member, other in ((a, b), (b, a)):
             alone_fit, alone_r, _ = trial[other]
-            tests[member] = significance(alone_r, r, sigma, max(front.n_params(fit) - front.n_params(alone_fit), 1),
-                                         gap_weighted_blocks=rules.gap_weighted_blocks)
+            k_member = max(front.n_params(fit) - front.n_params(alone_fit), 1)
+            tests[member] = _with_training_support(
+                front, significance(alone_r, r, sigma, k_member, gap_weighted_blocks=rules.gap_weighted_blocks),
+                alone_fit, fit, k_member, rules)
         if all(tests[m]["significant"] for m in (a, b)):
             order = tuple(sorted((a, b), key=lambda m: tests[m]["delta_bic"]))
             best = (order, fit, r, tests)
