@@ -128,8 +128,7 @@ def significance(r0, r1, sigma, k_extra, *, n_blocks=10, gap_weighted_blocks=Fal
     n = r0.size
     rss0, rss1 = float(np.sum(r0**2)), float(np.sum(r1**2))
     step = 1.0 - np.sqrt(rss1 / rss0) if rss0 > 0 else 0.0
-    n_eff = max(n / decorrelation_length(r0), 5.0)
-    dbic = n_eff * np.log(max(rss1, 1e-300) / rss0) + k_extra * np.log(n_eff)
+    dbic, n_eff = _delta_bic(r0, r1, k_extra)
     ms0 = np.array([b.mean() for b in np.array_split(r0**2, n_blocks)])
     ms1 = np.array([b.mean() for b in np.array_split(r1**2, n_blocks)])
     weight = np.ones(n_blocks)
@@ -149,9 +148,15 @@ def training_delta_bic(r0, r1, k_extra) -> float:
     ``r0``/``r1`` the training residuals without/with the candidate, ``n_eff = n / L`` (L: the
     decorrelation length of ``r0``). Below 0 where the candidate pays for its parameters on the
     data it was fitted to (:attr:`Rules.training_support`)."""
+    return _delta_bic(r0, r1, k_extra)[0]
+
+
+def _delta_bic(r0, r1, k_extra) -> tuple[float, float]:
+    """``(n_eff·ln(RSS₁/RSS₀) + k_extra·ln(n_eff), n_eff)``, ``n_eff = max(n / L, 5)`` with L the
+    decorrelation length of ``r0``: the ΔBIC of :func:`significance` and :func:`training_delta_bic`."""
     rss0, rss1 = float(np.sum(r0**2)), float(np.sum(r1**2))
     n_eff = max(r0.size / decorrelation_length(r0), 5.0)
-    return float(n_eff * np.log(max(rss1, 1e-300) / max(rss0, 1e-300)) + k_extra * np.log(n_eff))
+    return float(n_eff * np.log(max(rss1, 1e-300) / max(rss0, 1e-300)) + k_extra * np.log(n_eff)), float(n_eff)
 
 
 @dataclass(frozen=True)
