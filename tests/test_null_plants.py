@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from afmsim.diagnosis import diagnose_loops
-from afmsim.diagnosis.loops.null_plants import NULL_FAMILIES, _relay_sum, null_plant
+from afmsim.diagnosis.loops.null_plants import NULL_FAMILIES, OTHER_FAMILIES, _relay_sum, null_plant
 from afmsim.diagnosis.loops.validation import excitation
 
 FRESH_SEED = 2026
@@ -26,7 +26,7 @@ def _triangles(points_per_edge):
     return np.r_[np.concatenate(edges), vertices[-1]]
 
 
-@pytest.mark.parametrize("family", sorted(NULL_FAMILIES))
+@pytest.mark.parametrize("family", sorted({**NULL_FAMILIES, **OTHER_FAMILIES}))
 def test_null_plants_are_rate_independent_and_hysteretic(family):
     slow, fast = _triangles(400), _triangles(100)  # the same voltage path, four times fewer samples
     x_slow = null_plant(family, slow, np.random.default_rng(1))

@@ -17,6 +17,16 @@ Independent code: none of these shares an equation or a basis with the diagnosis
   included). Its minor loops drift before they
   close (no return-point memory), so periodic parts of a drive close their loops after a transient.
 
+Outside the open-world suite's draw (:data:`NULL_FAMILIES`), reachable through :func:`null_plant`
+(:data:`OTHER_FAMILIES`):
+
+* :func:`coleman_hodgdon` — the Coleman–Hodgdon model of the Duhem class (Coleman & Hodgdon,
+  Int. J. Eng. Sci. 24 (1986) 897; as a semilinear Duhem model Oh & Bernstein, IEEE Trans. Autom.
+  Control 50 (2005) 631): ``dx = α·|dv|·(f(v) − x) + g(v)·dv`` with a quadratic anhysteretic curve
+  f and a linear slope g, so that the law's drive term ``f′ − g`` changes along the voltage
+  (a Bouc–Wen law has a constant one). Added as the probe that the baseline's Bouc–Wen family
+  could not fit (development records, seeds ``[91, 0…11]``).
+
 Every generator maps a 0–10 V drive to about ``travel_m`` of displacement and draws its shape from
 ``rng`` (a seeded :class:`numpy.random.Generator`), so a seed is a different stage.
 """
@@ -26,7 +36,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["NULL_FAMILIES", "scattered_preisach", "generalised_pi", "bouc_wen", "null_plant"]
+__all__ = ["NULL_FAMILIES", "OTHER_FAMILIES", "scattered_preisach", "generalised_pi", "bouc_wen", "coleman_hodgdon",
+           "null_plant"]
 
 V_MAX = 10.0
 #: Largest voltage substep (V) of the Bouc–Wen plant's explicit Euler integration (converged to
@@ -102,6 +113,36 @@ def bouc_wen(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-
     return _to_travel(out, travel_m)
 
 
+def coleman_hodgdon(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6,
+                    max_substep_v: float = MAX_SUBSTEP_V) -> np.ndarray:
+    """Displacement (m) of a Coleman–Hodgdon plant ``dx = α·|dv|·(f(v) − x) + g(v)·dv``,
+    ``f(v) = v + c·v²``, ``g(v) = b·(1 + e·v)`` (v in V, x in V-equivalents before scaling to
+    ``travel_m``), from the anhysteretic curve at the first sample; explicit Euler in voltage
+    substeps of at most ``max_substep_v`` (V), at least 8 per sample (rate-independent: only the
+    voltage path matters)."""
+    alpha = rng.uniform(0.3, 1.5)  # 1/V: how fast a branch approaches the anhysteretic curve
+    c = rng.uniform(-0.03, 0.03)   # 1/V: its curvature
+    b = rng.uniform(0.5, 0.9)      # slope just after a reversal, relative to f's
+    e = rng.uniform(-0.03, 0.03)   # 1/V: that slope's change along the voltage
+    return _to_travel(_coleman_hodgdon(np.asarray(v, dtype=np.float64), alpha, c, b, e, max_substep_v), travel_m)
+
+
+@njit(cache=True)
+def _coleman_hodgdon(v, alpha, c, b, e, max_substep_v):  # pragma: no cover - compiled
+    x = np.empty(v.size)
+    xk = v[0] + c * v[0] ** 2
+    x[0] = xk
+    for k in range(1, v.size):
+        m = max(8, int(np.ceil(abs(v[k] - v[k - 1]) / max_substep_v)))
+        dv = (v[k] - v[k - 1]) / m
+        u = v[k - 1]
+        for _ in range(m):
+            u += dv
+            xk += alpha * abs(dv) * (u + c * u * u - xk) + b * (1.0 + e * u) * dv
+        x[k] = xk
+    return x
+
+
 @njit(cache=True)
 def _relay_sum(v, up, down, weight):  # pragma: no cover - compiled
     """Σ weight·relay(v): sharp relays, on at ``up``, off at ``down``, from rest below ``v[0]``.
@@ -149,10 +190,14 @@ def _bouc_wen_h(v, amp, beta, gamma, n, substeps, max_substep_v):  # pragma: no 
 
 
 NULL_FAMILIES = {"scattered_preisach": scattered_preisach, "generalised_pi": generalised_pi, "bouc_wen": bouc_wen}
+#: Families outside the open-world suite's draw (its case plan and results stay comparable across versions).
+OTHER_FAMILIES = {"coleman_hodgdon": coleman_hodgdon}
 
 
 def null_plant(family: str, v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6) -> np.ndarray:
-    """Displacement (m) of a ``family`` plant (a key of :data:`NULL_FAMILIES`) driven by ``v`` (0–10 V)."""
-    if family not in NULL_FAMILIES:
-        raise ValueError(f"unknown hysteresis family {family!r}; known: {sorted(NULL_FAMILIES)}")
-    return NULL_FAMILIES[family](np.asarray(v, dtype=float), rng, travel_m=travel_m)
+    """Displacement (m) of a ``family`` plant (a key of :data:`NULL_FAMILIES` or
+    :data:`OTHER_FAMILIES`) driven by ``v`` (0–10 V)."""
+    families = {**NULL_FAMILIES, **OTHER_FAMILIES}
+    if family not in families:
+        raise ValueError(f"unknown hysteresis family {family!r}; known: {sorted(families)}")
+    return families[family](np.asarray(v, dtype=float), rng, travel_m=travel_m)
