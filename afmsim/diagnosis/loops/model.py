@@ -578,7 +578,7 @@ class Design:
         ``GCV = m·RSS / (m − df)²`` (m training samples; df the fit's effective parameter count,
         :func:`solve_weights` ``with_df``: the trace of its hat matrix on the non-negative
         solution's active set, so the density prior's shrinkage counts; the Bouc–Wen law's columns
-        plus its three shape parameters); the smallest wins, ties to the smaller model. The
+        plus its four shape parameters); the smallest wins, ties to the smaller model. The
         held-out part is never looked at.
 
         The nuisance columns (a linear drift, the cross axis' motion, the drive's relaxations)
@@ -598,7 +598,7 @@ class Design:
         shape, _ = fit_bouc_wen_shape(u, self.block, self.free, self.x, self.train, extra=nuisance)
         cols = np.hstack([free, bouc_wen_columns(u, shape, self.block, self.free)])
         w, *_ = np.linalg.lstsq(cols[self.train], self.x[self.train], rcond=None)
-        scores["bouc_wen"] = (float(np.sum((cols @ w - self.x)[self.train] ** 2)), cols.shape[1] + 3.0)
+        scores["bouc_wen"] = (float(np.sum((cols @ w - self.x)[self.train] ** 2)), cols.shape[1] + 4.0)
         play_cols = self.hyst("play")
         cols, plays = np.hstack([free, play_cols[:, :N_PLAY_FREE]]), play_cols[:, N_PLAY_FREE:]
         wf, wp, df = solve_weights(cols, plays, self.x, self.train, with_df=True)
