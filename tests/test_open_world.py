@@ -2,7 +2,7 @@
 the scoring (:mod:`afmsim.diagnosis.loops.open_world`, :mod:`afmsim.diagnosis.loops.distractors`).
 
 The full suite is a benchmark (``benchmarks/bench_open_world.py``), not a test. The end-to-end case
-below uses seed 11, which is neither a development seed (1–6) nor a fresh one (7001–7003, 8001–8003, 9001–9003, 10001–10003, 11001–11003, 12001–12003, 13001–13003, 14001–14003, 15001–15003, 16001–16003, 17001–17003, 18001–18003, 19001–19003, 20001–20003, 21001–21003, 22001–22003, 23001–23003, 24001–24003, 25001–25003, 26001–26003, 27001–27003).
+below uses seed 11, which is neither a development seed (1–6) nor a fresh one (7001–7003, 8001–8003, 9001–9003, 10001–10003, 11001–11003, 12001–12003, 13001–13003, 14001–14003, 15001–15003, 16001–16003, 17001–17003, 18001–18003, 19001–19003, 20001–20003, 21001–21003, 22001–22003, 23001–23003, 24001–24003, 25001–25003, 26001–26003, 27001–27003, 28001–28003).
 """
 
 import numpy as np

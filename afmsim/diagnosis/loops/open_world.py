@@ -109,8 +109,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: the 32-level grid with its prior and the family chosen by generalised cross-validation (measured
 #: on spent records of 24001–25003); 27001–27003 first for the training-support rule of the
 #: attribution (prompted by the null record of tests/test_null_plants.py, seed 2026; measured on spent
-#: records of 25001–26003).
-FRESH_SEEDS = (27001, 27002, 27003)
+#: records of 25001–26003); 28001–28003 first for the Bouc–Wen family's drive term that changes along the
+#: voltage (prompted by Coleman–Hodgdon probe records outside the suite; measured on spent records of
+#: 27001–27003).
+FRESH_SEEDS = (28001, 28002, 28003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
