@@ -401,12 +401,12 @@ def validate_diagnosis_command(
                        "non-candidate distractors, 34 cases per seed (--seeds; loops only)."),
     seeds: Optional[str] = typer.Option(None, help="Open-world seeds, comma-separated (default: --seed); "
                                                    "1-6 were the development seeds."),
-    workers: Optional[int] = typer.Option(None, min=1, max=1024, help="Open-world worker processes "
-                                                                      "(default: every core)."),
+    workers: Optional[int] = typer.Option(None, min=1, max=1024, help="Worker processes of the loop and "
+                                                                      "open-world suites (default: every core)."),
 ):
     """Prove the diagnosis on simulated data whose effect was withheld from the model.
 
-    Python: afmsim.diagnosis.validate_diagnosis(n_cases, seed) or validate_image_diagnosis(n_cases, seed);
+    Python: afmsim.diagnosis.validate_diagnosis(n_cases, seed, workers=...) or validate_image_diagnosis(n_cases, seed);
     afmsim.diagnosis.loops.open_world.validate_open_world(seeds, workers=...) for --suite open-world.
     The published figures (benchmarks/results/) come from benchmarks/bench_*diagnosis.py and
     benchmarks/bench_open_world.py.
@@ -439,7 +439,7 @@ def validate_diagnosis_command(
                 write_json(folder / "open_world.json", result)
                 scores = headline(result)
             else:
-                scores = run(n_cases=cases, seed=seed)
+                scores = run(n_cases=cases, seed=seed, **({"workers": workers} if kind == "loops" else {}))
                 write_json(folder / ("diagnosis.json" if kind == "loops" else "image_diagnosis.json"), scores)
     except (ValueError, OSError, WorkerDied) as error:
         _fail(str(error).splitlines()[0])

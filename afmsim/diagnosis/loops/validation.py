@@ -35,6 +35,7 @@ import numpy as np
 from scipy.signal import bilinear, butter, fftconvolve, lfilter, sosfiltfilt
 
 from afmsim.stage import AsymmetricPreisach, AxisParams, PiezoAxis
+from afmsim.workers import available_cores, ordered_map, worker_pool
 
 from ..engine import STATUSES
 from .attribute import diagnose_record
@@ -261,15 +262,22 @@ def _score_case(case: dict) -> dict:
     return out
 
 
-def validate_diagnosis(n_cases: int = 30, seed: int = 0) -> dict:
-    """Run ``n_cases`` simulated cases (effects at 3 magnitudes, pairs, nulls) and score the diagnosis."""
+def _run_case(spec, case_seed: int) -> dict:
+    """Simulate and score one case of :func:`case_plan` from its own seed."""
+    return _score_case(make_case(spec, np.random.default_rng(case_seed)))
+
+
+def validate_diagnosis(n_cases: int = 30, seed: int = 0, *, workers: int | None = None) -> dict:
+    """Run ``n_cases`` simulated cases (effects at 3 magnitudes, pairs, nulls) and score the diagnosis.
+
+    Each case draws its seed from ``seed`` in plan order before any runs, so the cases are the same
+    on any number of ``workers`` (processes; default: every core)."""
     if n_cases < 1:
         raise ValueError("n_cases must be >= 1")
     rng = np.random.default_rng(seed)
-    cases = []
-    for spec in case_plan(n_cases):
-        case = make_case(spec, np.random.default_rng(rng.integers(2**63)))
-        cases.append(_score_case(case))
+    items = [(spec, int(rng.integers(2**63))) for spec in case_plan(n_cases)]
+    with worker_pool(workers or available_cores()) as executor:
+        cases = ordered_map(executor, _run_case, items)
     nulls = [c for c in cases if not c["effects"]]
     eff = [c for c in cases if c["effects"]]
     # headline parameter recovery over the parameters with an exact truth (drift rate, coupling,
