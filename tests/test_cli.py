@@ -234,11 +234,12 @@ def test_validate_diagnosis_writes_a_run_folder_under_outputs(tmp_path, monkeypa
 
     calls = []
     monkeypatch.setattr(afmsim.diagnosis, "validate_diagnosis",
-                        lambda n_cases, seed: calls.append((n_cases, seed)) or {"n_cases": n_cases, "cases": []})
+                        lambda n_cases, seed, workers=None: calls.append((n_cases, seed, workers))
+                        or {"n_cases": n_cases, "cases": []})
     monkeypatch.chdir(tmp_path)
-    result = runner.invoke(app, ["validate-diagnosis", "--cases", "4", "--seed", "3"])
+    result = runner.invoke(app, ["validate-diagnosis", "--cases", "4", "--seed", "3", "--workers", "1"])
     assert result.exit_code == 0, result.output
-    assert calls == [(4, 3)]
+    assert calls == [(4, 3, 1)]
     (folder,) = (tmp_path / "outputs").iterdir()
     assert folder.name.startswith("validate-diagnosis-loops-") and f"wrote outputs/{folder.name}" in result.output
     assert sorted(p.name for p in folder.iterdir()) == ["diagnosis.json", "manifest.json"]
@@ -247,6 +248,6 @@ def test_validate_diagnosis_writes_a_run_folder_under_outputs(tmp_path, monkeypa
     assert manifest["command"] == "validate-diagnosis" and manifest["config"] == {"cases": 4, "seed": 3, "kind": "loops"}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["outputs"]       # nothing in benchmarks/results
     result = runner.invoke(app, ["validate-diagnosis", "--cases", "4", "--out", str(folder)])
-    assert result.exit_code == 2 and "already exists" in result.output and calls == [(4, 3)]
+    assert result.exit_code == 2 and "already exists" in result.output and calls == [(4, 3, 1)]
     result = runner.invoke(app, ["validate-diagnosis", "--cases", "5", "--out", str(tmp_path / "mine")])
     assert result.exit_code == 0 and (tmp_path / "mine" / "diagnosis.json").is_file()    # an explicit --out
