@@ -85,7 +85,11 @@ CANDIDATES = ("creep", "drift", "dynamics", "cross_coupling", "asymmetry")
 #: records. 40 and 48 levels gave mixed results on the scattered nulls at 2–4× the cost. The
 #: dynamics candidate's lag search stays on a 16-level grid (:data:`SEARCH_LEVELS`): on the
 #: 32-level grid two spent records' diagnoses took 188 s each (14 s and 49 s on the old grid; 37 s
-#: and 31 s with the search on the coarse grid).
+#: and 31 s with the search on the coarse grid). Choosing between 32 and 48 levels with the prior's
+#: weight by GCV (held-out scoring kept on the 32-level grid) was tried on spent seeds 28001–28003
+#: (102 cases): GCV took 48 levels on most grid records; nulls within 2× 15 → 17 of 24, but the finer
+#: grid absorbed effects the coarser one left to the candidates (effect top-1 44 → 40 of 54,
+#: distractors named 6 → 7) at twice the time (3,145 s against 1,656 s of diagnosis): not taken.
 N_LEVELS = 32
 #: Relay-grid size on which the dynamics candidate's lag and resonance are searched (:func:`fit_model`)
 #: when the record's grid is finer (the baseline's former default); the chosen lag is then fitted on
