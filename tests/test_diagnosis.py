@@ -106,6 +106,27 @@ def test_small_validation_run():
     assert len(case_plan(30)) == 30
 
 
+def test_validation_cases_are_the_same_on_one_and_two_workers(monkeypatch):
+    """Each case's seed is drawn in plan order before any case runs, and the results come back in
+    plan order: the cases (and so the scores) do not depend on the worker count. The diagnosis is
+    replaced by a fingerprint of the simulated record, so the check costs no fits."""
+    from afmsim.diagnosis.loops import validation
+
+    def fingerprint(case):
+        x = case["columns"]["x_m"]
+        return {"effects": list(case["effects"]), "verdict": [], "status": "nothing_missing", "params": {},
+                "top1": not case["effects"], "exact": not case["effects"],
+                "record": [x.size, float(x.sum()), float(x[-1]), case["excitation"], case["fs"]]}
+
+    monkeypatch.setattr(validation, "_score_case", fingerprint)
+    serial = validate_diagnosis(n_cases=6, seed=5, workers=1)["cases"]
+    parallel = validate_diagnosis(n_cases=6, seed=5, workers=2)["cases"]
+    assert [c["record"] for c in parallel] == [c["record"] for c in serial]
+    assert len({c["record"][1] for c in serial}) == 6  # six different records, not one repeated
+    assert [c["effects"] for c in serial] == [list(make_case(spec, np.random.default_rng(0))["effects"])
+                                              for spec in case_plan(6)]
+
+
 def test_real_record():
     if not RECORD.is_file():
         pytest.skip(f"real record not available: {RECORD}")
