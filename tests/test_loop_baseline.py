@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from afmsim.diagnosis.engine import noise_floor
-from afmsim.diagnosis.loops.attribute import diagnose_record
+from afmsim.diagnosis.loops.attribute import choose_split, diagnose_record
 from afmsim.diagnosis.loops.model import (N_LEVELS, SEARCH_LEVELS, SMOOTHING_CHOICES, Design, ModelSpec, _filt, _fit_columns,
                                           after_excursion, fit_model, lag_filter, relay_curvature, relay_features,
                                           solve_weights)
@@ -506,7 +506,9 @@ def test_with_effects_the_bouc_wen_shape_is_refitted_jointly_with_them():
 
 
 def test_a_gap_scored_in_untrained_relay_states_says_so():
-    """A generalised-PI null under band-limited noise (open-world seed 14002, case 23, published):
+    """A generalised-PI null under band-limited noise (open-world seed 14002, case 23, published),
+    split at 60 % as given (:func:`choose_split` keeps 60 % here too: at 80 %, the first later split
+    with trained held-out states, 3 % of the held-out part would be scored):
     the training part reaches its top voltage only in its last samples, so no held-out sample is in a
     relay state it determines (0 of 3200; a fit on the whole record leaves 8×); the gap scored by the
     fallback rule (91× the noise) is the grid's extrapolation, and the summary says so. A record whose
@@ -514,8 +516,9 @@ def test_a_gap_scored_in_untrained_relay_states_says_so():
     spec = case_plan()[23]
     assert spec.category == "null"
     case = make_case(spec, np.random.default_rng([14002, 23]))
-    rep, summary, _ = diagnose_record(load_record(case["columns"]), candidates=[])
-    assert rep["baseline"]["heldout_scoring"] == "before_excursion"
+    rep, summary, _ = diagnose_record(load_record(case["columns"]), candidates=[], train_fraction=0.6)
+    assert rep["baseline"]["heldout_scoring"] == "before_excursion" and rep["record"]["split"] == "given"
+    assert choose_split(load_record(case["columns"])) == (0.6, "default_untrained")
     assert rep["status"] == "unexplained"
     assert "relay states that the training part determines" in summary
     t, v, train = _drive()
@@ -565,3 +568,36 @@ def test_a_sensor_mounted_the_other_way_round_gets_the_same_diagnosis():
     assert flipped["baseline"]["rms_gap"] == pytest.approx(upright["baseline"]["rms_gap"], rel=1e-6)
     assert flipped["baseline"]["noise_floor"] == pytest.approx(upright["baseline"]["noise_floor"], rel=1e-6)
     assert "Polarity" in summary
+
+
+def _peak_at_the_split():
+    """Triangles whose highest peak (8.7 V) the first 60 % of the time rises to but never leaves:
+    every later descent starts from a relay state no earlier sample had."""
+    knots_t = [0, 0.3, 1.3, 2.3, 3.3, 4.3, 4.8, 5.3, 6.3, 7.3, 7.4, 7.5, 7.7, 8.0, 8.2]
+    knots_v = [0, 0, 6.9, 0, 5.6, 0, 8.7, 0, 4.0, 0, 7.4, 0, 6.2, 0, 2.1]
+    t = np.arange(0.0, 8.2, 1e-3)
+    return t, np.interp(t, knots_t, knots_v)
+
+
+def test_the_split_moves_on_until_the_held_out_states_are_trained():
+    """afmsim's own stage, no effect: split at 60 %, the held-out part descends from a peak the
+    training part only rose to, and the grid's extrapolation to those relay states leaves 15× the
+    noise (fallback scoring); the chosen split (70 %) holds out states the training part determines
+    (for at least a quarter of its samples, MIN_MOVED_SHARE), and the same record is
+    nothing_missing. The choice looks at the drive only: a
+    displacement that is pure noise gets the same split."""
+    t, v = _peak_at_the_split()
+    x = AsymmetricPreisach().apply(v) + 8e-9 * np.random.default_rng(3).standard_normal(t.size)
+    rec = load_record({"t_s": t, "v_V": v, "x_m": x})
+    assert choose_split(rec) == (0.7, "moved_to_trained_states")
+    fixed, _, _ = diagnose_record(rec, candidates=[], train_fraction=0.6)
+    chosen, _, _ = diagnose_record(rec, candidates=[])
+    assert fixed["baseline"]["heldout_scoring"] == "before_excursion" and fixed["baseline"]["gap_to_noise"] > 5.0
+    assert chosen["record"]["train_fraction"] == 0.7 and chosen["record"]["split"] == "moved_to_trained_states"
+    assert chosen["baseline"]["heldout_scoring"] == "trained_states" and chosen["baseline"]["gap_to_noise"] < 2.0
+    assert chosen["status"] == "nothing_missing"
+    noise = load_record({"t_s": t, "v_V": v, "x_m": 8e-9 * np.random.default_rng(4).standard_normal(t.size)})
+    assert choose_split(noise) == choose_split(rec)
+    t, v, _ = _drive()
+    steady = load_record({"t_s": t, "v_V": v, "x_m": _record(AsymmetricPreisach().apply(v), v, np.random.default_rng(1))})
+    assert choose_split(steady) == (0.6, "default")
