@@ -590,8 +590,10 @@ def test_the_split_moves_on_until_the_held_out_states_are_trained():
     x = AsymmetricPreisach().apply(v) + 8e-9 * np.random.default_rng(3).standard_normal(t.size)
     rec = load_record({"t_s": t, "v_V": v, "x_m": x})
     assert choose_split(rec) == (0.7, "moved_to_trained_states")
-    fixed, _, _ = diagnose_record(rec, candidates=[], train_fraction=0.6)
-    chosen, _, _ = diagnose_record(rec, candidates=[])
+    fixed, fixed_summary, _ = diagnose_record(rec, candidates=[], train_fraction=0.6)
+    assert "Split:" not in fixed_summary
+    chosen, summary, _ = diagnose_record(rec, candidates=[])
+    assert "Split: the first 70 % of the record is fitted, not 60 %" in summary
     assert fixed["baseline"]["heldout_scoring"] == "before_excursion" and fixed["baseline"]["gap_to_noise"] > 5.0
     assert chosen["record"]["train_fraction"] == 0.7 and chosen["record"]["split"] == "moved_to_trained_states"
     assert chosen["baseline"]["heldout_scoring"] == "trained_states" and chosen["baseline"]["gap_to_noise"] < 2.0

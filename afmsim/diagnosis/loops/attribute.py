@@ -226,6 +226,10 @@ def loop_summary(rep: dict) -> str:
     if b.get("drive_polarity", 1) < 0:
         lines.append("Polarity: the displacement falls as the drive rises (a sensor or axis mounted the other way "
                      "round); the hysteresis is fitted with that sign.")
+    if rep["record"].get("split") == "moved_to_trained_states":
+        moved, default = 100 * rep["record"]["train_fraction"], 100 * TRAIN_FRACTION
+        lines.append(f"Split: the first {moved:.0f} % of the record is fitted, not {default:.0f} %: after "
+                     f"{default:.0f} % too few held-out samples are in relay states that the training part determines.")
     if b["heldout_scoring"] in UNTRAINED_SCORING:
         lines.append(f"Held-out scoring ({b['heldout_scoring']}): too few held-out samples are in relay states that the "
                      "training part determines, so the gap includes the model's extrapolation to states whose weights "
