@@ -304,9 +304,12 @@ def diagnose(
     measured: Path = typer.Option(..., "--measured", help="Measured data: a loop record CSV (t_s,v_V,x_m[,y_m]), or "
                                                           "trace/retrace images: .npz (trace, retrace, scan_size_m, "
                                                           "line_rate_hz; or a run's images.npz), .gwy, or an "
-                                                          "instrument file (.nid, .ibw, .spm, .000-.999: the "
-                                                          "topography's forward/backward scans, scan size and "
-                                                          "line time from the file)."),
+                                                          "instrument file (.nid, .ibw, .spm, .000-.999, Park "
+                                                          ".tiff: the topography's forward/backward scans, scan "
+                                                          "size and line time from the file)."),
+    retrace: Optional[Path] = typer.Option(None, "--retrace", help="Images: a second instrument file with the other "
+                                                                   "scan direction, for instruments that write one "
+                                                                   "direction per file (Park .tiff)."),
     scenario: Optional[Path] = typer.Option(None, "--scenario", help="Scenario YAML of the model: effects its stage "
                                                                      "switches on are already modelled; for images "
                                                                      "also the imaged sample, tip and Z loop."),
@@ -331,19 +334,22 @@ def diagnose(
     from afmsim.runio import default_run_dir, run_folder, write_json
 
     images = reader_for(measured) is not None
+    if retrace is not None and not images:
+        _fail(f"--retrace goes with an image file, not with {measured.name}")
     loaded = _load(scenario) if scenario is not None else None
     out = out or default_run_dir("diagnose", measured.stem)
     if out.exists():
         _fail(f"output folder {out} already exists: choose another --out or remove it")
     try:  # image files are read (once) and checked, an instrument file's height pair picked, before anything is written
-        record = load_images(measured, channel=channel, line_rate_hz=loaded.scan.line_rate_hz if loaded else None) \
-            if images else None
+        record = load_images(measured, channel=channel, line_rate_hz=loaded.scan.line_rate_hz if loaded else None,
+                             retrace=retrace) if images else None
     except ValueError as error:
         _fail(str(error).splitlines()[0])
     picked = record.picked if record is not None else None
     if picked is not None:
         typer.echo(picked)
-    config = {"measured": str(measured), "scenario": None if scenario is None else str(scenario), "baseline": baseline,
+    config = {"measured": str(measured), **({"retrace": str(retrace)} if retrace is not None else {}),
+              "scenario": None if scenario is None else str(scenario), "baseline": baseline,
               "seed": seed, **({"reference": reference, "channel": channel} if images else {}),
               **({"picked": picked} if picked is not None else {})}
     try:
@@ -365,7 +371,8 @@ def diagnose(
 
 @app.command()
 def inspect(
-    file: Path = typer.Argument(..., help="An AFM file: .nid, .gwy, .ibw, .spm, .000-.999 or afmsim's .npz."),
+    file: Path = typer.Argument(..., help="An AFM file: .nid, .gwy, .ibw, .spm, .000-.999, Park .tiff or afmsim's "
+                                          ".npz."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON: {format, channels: [{name, direction, quantity, "
                                                        "unit, shape, size_m, line_time_s}], picked}."),
 ):

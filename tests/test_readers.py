@@ -91,6 +91,36 @@ def _write_nanoscope(path, layers, *, size_um=5.0, rate_hz=1.0, frame="Up", zsen
     return path
 
 
+def _utf16(text: str, n: int) -> list[int]:
+    codes = [ord(c) for c in text][:n]
+    return codes + [0] * (n - len(codes))
+
+
+def _write_park(path, raw, *, name="Z Height", forward=True, up=True, size_um=(10.0, 5.0), rate_hz=0.5,
+                gain=1e-3, scale=1.0, offset=0.0, unit="um"):
+    """A Park Systems TIFF (header version 2) written with ``tifffile``: an 8-bit picture plus the PSIA
+    private tags (50432 magic, 50433 version, 50434 data, 50435 header; the header's field layout as
+    ``pspylib``'s ``TiffReader`` and ``SurfaceTopography``'s ``PSReader`` document it). ``raw``:
+    (lines, pixels) int16, int32 or float32, bottom line first; heights are gain·(scale·raw + offset)."""
+    import struct
+
+    import tifffile
+
+    lines, points = raw.shape
+    code = {np.dtype("<i2"): 0, np.dtype("<i4"): 1, np.dtype("<f4"): 2}[raw.dtype]
+    fields = [("<i", 0), ("<32H", *_utf16(name, 32)), ("<8H", *_utf16("Contact", 8)), ("<d", 0.0), ("<2i", 0, 0),
+              ("<2i", points, lines), ("<d", 0.0), ("<i", 0), ("<d", 0.0), ("<3i", int(forward), int(up), 0),
+              ("<6d", *size_um, 0.0, 0.0, rate_hz, 0.0), ("<8H", *_utf16("nN", 8)), ("<5d", 0.0, 0.0, gain, scale, offset),
+              ("<8H", *_utf16(unit, 8)), ("<6i", 0, 0, 0, 0, 0, 0), ("<2d", 0.0, 0.0), ("<24H", *[0] * 24),
+              ("<3i", code, 0, 0), ("<3d", 0.0, 0.0, 0.0), ("<16H", *_utf16("tip", 16)), ("<64x",)]
+    header = b"".join(struct.pack(f[0], *f[1:]) for f in fields)
+    data = np.ascontiguousarray(raw).tobytes()
+    tags = [(50432, 4, 1, 0x0E031301, True), (50433, 4, 1, 0x1000002, True), (50434, 1, len(data), data, True),
+            (50435, 1, len(header), header, True)]
+    tifffile.imwrite(path, np.zeros(raw.shape, np.uint8), extratags=tags)
+    return path
+
+
 def _grating(lines=24, points=32, shift_px=1.5, seed=0):
     """A ridge grating traced left → right and right → left: the retrace lags by ``shift_px`` pixels."""
     rng = np.random.default_rng(seed)
@@ -282,6 +312,66 @@ def test_nanoscope_scaling_directions_and_line_time(tmp_path):
     np.testing.assert_array_equal(afm.channels[1].data, r.data)
 
 
+def test_park_scaling_direction_rows_and_line_time(tmp_path):
+    rng = np.random.default_rng(3)
+    raw = rng.integers(-20000, 20000, (12, 16)).astype("<i2")
+    up = read_afm_file(_write_park(tmp_path / "fwd.tiff", raw, gain=2e-3, rate_hz=0.5, size_um=(8.0, 6.0)))
+    assert up.format == "park" and len(up.channels) == 1
+    (c,) = up.channels
+    assert (c.name, c.direction, c.quantity, c.unit) == ("Z Height", "forward", "height", "m")
+    np.testing.assert_allclose(c.data, raw * 2e-3 * 1e-6)  # gain (µm per unit) · raw; bottom line first = scanned first
+    assert c.size_m == pytest.approx((8e-6, 6e-6)) and c.line_time_s == pytest.approx(1.0)  # 0.5 Hz trace+retrace
+    flt = rng.normal(0, 100, (12, 16)).astype("<f4")  # float data in nm, scale and offset as Gwyddion applies them
+    down = read_afm_file(_write_park(tmp_path / "bwd.tif", flt, forward=False, up=False, gain=1.5, scale=2.0,
+                                     offset=3.0, unit="nm", rate_hz=2.0))
+    (d,) = down.channels
+    assert d.direction == "backward" and down.metadata["slow_scan"] == "down"
+    np.testing.assert_allclose(d.data, (1.5 * (2.0 * flt.astype(float) + 3.0) * 1e-9)[::-1], rtol=1e-6)  # rows reversed
+    assert d.line_time_s == pytest.approx(0.25)
+
+
+def test_park_refusals_are_one_line(tmp_path):
+    import tifffile
+
+    plain = tmp_path / "photo.tiff"
+    tifffile.imwrite(plain, np.zeros((8, 8), np.uint8))
+    volts = _write_park(tmp_path / "amplitude.tiff", np.zeros((8, 8), "<i2"), name="Amplitude", unit="V")
+    for path, words in ((plain, "without Park Systems' PSIA tags"), (volts, "only length channels")):
+        with pytest.raises(ReaderError, match=words) as info:
+            read_afm_file(path)
+        assert "\n" not in str(info.value)
+    fwd = _write_park(tmp_path / "fwd.tiff", np.zeros((8, 8), "<i2"))
+    with pytest.raises(ReaderError, match="same file is given twice"):
+        readers.read_afm_files(fwd, fwd)
+
+
+def test_park_forward_and_backward_files_diagnose_as_one_pair(tmp_path):
+    trace, retrace = _grating(lines=20, points=32)
+    nm = 1e-3  # gain: µm per stored unit (1 nm)
+    fwd = _write_park(tmp_path / "grating_fwd.tiff", np.round(trace / 1e-9).astype("<i2"), gain=nm,
+                      size_um=(3.2, 2.0), rate_hz=1.0)
+    bwd = _write_park(tmp_path / "grating_bwd.tiff", np.round(retrace / 1e-9).astype("<i2"), gain=nm,
+                      forward=False, size_um=(3.2, 2.0), rate_hz=1.0)
+    listing = json.loads(runner.invoke(app, ["inspect", str(fwd), "--json"]).output)
+    assert listing["format"] == "park" and listing["channels"][0]["line_time_s"] == pytest.approx(0.5)
+    alone = runner.invoke(app, ["diagnose", "--measured", str(fwd), "--out", str(tmp_path / "alone")])
+    assert alone.exit_code == 2 and "forward scan only" in alone.output and alone.output.count("\n") == 1
+    assert not (tmp_path / "alone").exists()
+    out = tmp_path / "pair"
+    result = runner.invoke(app, ["diagnose", "--measured", str(fwd), "--retrace", str(bwd), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert result.output.splitlines()[0].startswith("grating_fwd.tiff: picked 'Z Height' forward/backward")
+    record = load_images(fwd, retrace=bwd)
+    np.testing.assert_allclose(record.trace, np.round(trace / 1e-9) * 1e-9, atol=1e-15)
+    np.testing.assert_allclose(record.retrace, np.round(retrace / 1e-9) * 1e-9, atol=1e-15)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert "grating_bwd.tiff" in json.dumps(manifest)
+    csv = tmp_path / "loop.csv"
+    csv.write_text("t_s,v_V,x_m\n0,0,0\n")
+    wrong = runner.invoke(app, ["diagnose", "--measured", str(csv), "--retrace", str(bwd), "--out", str(tmp_path / "w")])
+    assert wrong.exit_code == 2 and "--retrace goes with an image file" in wrong.output
+
+
 def test_npz_run_images_and_plain_pair(tmp_path):
     trace, retrace = _grating()
     plain = tmp_path / "pair.npz"
@@ -333,11 +423,12 @@ def _bad_files(tmp_path):
     png = b"\x89PNG\r\n\x1a\n" + bytes(200)
     random = np.random.default_rng(7).integers(0, 256, 4000, dtype=np.uint8).tobytes()
     files = {"empty.nid": b"", "picture.nid": png, "noise.nid": random, "noise.ibw": random, "noise.spm": random,
-             "noise.gwy": random, "noise.003": b"\\*File list\r\n\\Version: 0x05120130\r\n", "table.xyz": b"1 2 3"}
+             "noise.gwy": random, "noise.tiff": random, "noise.003": b"\\*File list\r\n\\Version: 0x05120130\r\n", "table.xyz": b"1 2 3"}
     trace, retrace = _grating()
     made = [_write_gwy(tmp_path / "made.gwy", [("Z forward", trace, "m", 1e-6, "m"), ("Z backward", retrace, "m", 1e-6, "m")]),
             _write_ibw(tmp_path / "made.ibw", {"HeightTrace": trace, "HeightRetrace": retrace}, {"ScanRate": 1}),
-            _write_nanoscope(tmp_path / "made.spm", [("Height", "Trace", np.zeros((16, 16), np.int16))])]
+            _write_nanoscope(tmp_path / "made.spm", [("Height", "Trace", np.zeros((16, 16), np.int16))]),
+            _write_park(tmp_path / "made.tiff", np.zeros((16, 16), "<i2"))]
     for path in made:  # cut in half: gwyfile would loop forever, igor2 logs, pySPM reads past the end
         files[f"cut_{path.name}"] = path.read_bytes()[:path.stat().st_size // 2]
         path.unlink()

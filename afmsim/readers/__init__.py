@@ -6,9 +6,10 @@
 
 Formats and the maintained package that reads each: Nanosurf ``.nid`` (``nsfopen``), Gwyddion
 ``.gwy`` (``gwyfile``), Asylum/Igor ``.ibw`` (``igor2``), Bruker/Veeco Nanoscope ``.spm`` and
-``.000``–``.999`` (``pySPM``), afmsim's own ``.npz`` (numpy). Each module documents how it finds
-line order, direction, units and line time in its format (:mod:`.channels` states the common
-conventions). Park ``.tiff`` is not read: no maintained Python reader handles it.
+``.000``–``.999`` (``pySPM``), Park Systems ``.tiff``/``.tif`` (``SurfaceTopography``), afmsim's own
+``.npz`` (numpy). Each module documents how it finds line order, direction, units and line time in
+its format (:mod:`.channels` states the common conventions). A Park file holds one scan direction:
+:func:`read_afm_files` reads a forward file and a backward file as one.
 Every problem raises :class:`ReaderError` with one line naming the file.
 """
 
@@ -23,13 +24,15 @@ from .ibw import read_ibw
 from .nanoscope import is_nanoscope_suffix, read_nanoscope
 from .nid import read_nid
 from .npz import read_npz
+from .park import read_park
 from .pick import pick_height_pair
 
-__all__ = ["read_afm_file", "pick_height_pair", "AfmFile", "Channel", "ReaderError", "reader_for", "FORMATS",
+__all__ = ["read_afm_file", "read_afm_files", "pick_height_pair", "AfmFile", "Channel", "ReaderError", "reader_for", "FORMATS",
            "channel_listing", "format_listing"]
 
-FORMATS = ".nid, .gwy, .ibw, .spm, .000–.999, .npz"
-_READERS = {".nid": read_nid, ".gwy": read_gwy_file, ".ibw": read_ibw, ".npz": read_npz}
+FORMATS = ".nid, .gwy, .ibw, .spm, .000–.999, .tiff/.tif (Park), .npz"
+_READERS = {".nid": read_nid, ".gwy": read_gwy_file, ".ibw": read_ibw, ".npz": read_npz, ".tiff": read_park,
+            ".tif": read_park}
 
 
 def reader_for(path) -> callable | None:
@@ -60,3 +63,23 @@ def read_afm_file(path) -> AfmFile:
     except Exception as error:  # a vendor reader failing on a file it half understands: one line, no traceback
         first = str(error).splitlines()[0] if str(error) else ""
         raise ReaderError(f"{path.name}: unreadable {path.suffix} file ({type(error).__name__}: {first})") from None
+
+
+def read_afm_files(*paths) -> AfmFile:
+    """Several files of one measurement read as one (a Park forward file and its backward file): the
+    channels of each in the order given, the first file's path, format and metadata
+    (``metadata["files"]`` lists every file). One path reads as :func:`read_afm_file`.
+
+    Raises :class:`ReaderError` (one line) for an unreadable file or the same file given twice.
+    """
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise ReaderError("no AFM file given")
+    if len({p.resolve() for p in paths}) < len(paths):
+        raise ReaderError(f"{paths[0].name}: the same file is given twice; give the file with the other scan direction")
+    files = [read_afm_file(p) for p in paths]
+    if len(files) == 1:
+        return files[0]
+    first = files[0]
+    metadata = {**first.metadata, "files": [p.name for p in paths]}
+    return AfmFile(first.path, first.format, tuple(c for f in files for c in f.channels), metadata)

@@ -190,7 +190,8 @@ def _columns(afm, channel: str | None, line_rate_hz: float | None) -> tuple[dict
     return cols, picked, label
 
 
-def load_images(source, *, channel: str | None = None, line_rate_hz: float | None = None) -> ImageRecord:
+def load_images(source, *, channel: str | None = None, line_rate_hz: float | None = None,
+                retrace=None) -> ImageRecord:
     """Validated :class:`ImageRecord` from a ``.npz``/``.gwy``/instrument-file path (read once, by
     :func:`afmsim.readers.read_afm_file`) or a mapping with the ``.npz`` keys; an
     :class:`ImageRecord` comes back as it is (already read and validated).
@@ -199,12 +200,16 @@ def load_images(source, *, channel: str | None = None, line_rate_hz: float | Non
     the vendor channel of an instrument file (default: the topography, see
     :func:`afmsim.readers.pick_height_pair`). ``line_rate_hz`` (Hz, the scenario's) is used where an
     instrument file or a plain ``.npz`` records none, and before what a run's ``images.npz``/
-    ``images.gwy`` recorded.
+    ``images.gwy`` recorded. ``retrace``: a second instrument file holding the other scan direction
+    (Park Systems writes one direction per file), read with ``source`` as one file
+    (:func:`afmsim.readers.read_afm_files`).
     """
+    if retrace is not None and not isinstance(source, (str, Path)):
+        raise ValueError("retrace: a second file goes with an image file path only")
     if isinstance(source, ImageRecord):
         return source
     if isinstance(source, (str, Path)):
-        from afmsim.readers import FORMATS, read_afm_file, reader_for
+        from afmsim.readers import FORMATS, read_afm_files, reader_for
 
         path = Path(source)
         if not path.is_file():
@@ -212,8 +217,13 @@ def load_images(source, *, channel: str | None = None, line_rate_hz: float | Non
         if reader_for(path) is None:
             raise ValueError(f"image file must be .npz or .gwy (images) or an instrument file ({FORMATS}), "
                              f"got {path.name}")
-        cols, picked, channel_label = _columns(read_afm_file(path), channel, line_rate_hz)
-        return _validate(cols, str(path) + (f" [{channel_label}]" if channel_label else ""), picked)
+        others = [] if retrace is None else [Path(retrace)]
+        for other in others:
+            if reader_for(other) is None:
+                raise ValueError(f"retrace file must be an instrument file ({FORMATS}), got {other.name}")
+        cols, picked, channel_label = _columns(read_afm_files(path, *others), channel, line_rate_hz)
+        label = str(path) + "".join(f" + {other.name}" for other in others)
+        return _validate(cols, label + (f" [{channel_label}]" if channel_label else ""), picked)
     if isinstance(source, dict):
         missing = [k for k in REQUIRED if k not in source and not (k == "line_rate_hz" and line_rate_hz)]
         if missing:
