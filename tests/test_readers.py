@@ -121,6 +121,37 @@ def _write_park(path, raw, *, name="Z Height", forward=True, up=True, size_um=(1
     return path
 
 
+def _jpk_slot(k: int, name: str, unit: str, multiply: float, offset: float) -> list:
+    base = 0x8090 + k * 0x30  # slot k's tag block (stride 0x30), as JPK's image spec and SurfaceTopography lay it out
+    return [(base, "s", 0, name, True), (base + 0x01, "s", 0, "scaled" if k else "raw", True),
+            (base + 0x02, "s", 0, "raw" if k else "none", True), (base + 0x10, "s", 0, name, True),
+            (base + 0x11, "s", 0, name, True), (base + 0x12, "s", 0, unit, True),
+            (base + 0x13, "s", 0, "LinearScaling", True), (base + 0x14, "d", 1, multiply, True),
+            (base + 0x15, "d", 1, offset, True)]
+
+
+def _write_jpk(path, pages, *, size_m=(5e-6, 4e-6), rate_hz=1.0):
+    """A JPK image scan written with ``tifffile``: a thumbnail page with the scan's tags, then one page per
+    ``(fancy name, retrace, raw int32 (lines, pixels) first line scanned first, multiply, offset)``, its
+    ``nominal`` slot in m. Both ``SurfaceTopography``'s ``JPKReader`` and AFMReader's ``load_jpk`` read
+    this layout to the same heights (checked when the fixture was written)."""
+    import tifffile
+
+    lines, points = pages[0][2].shape
+    scan = [(0x8000, "s", 0, "1.0", True), (0x8003, "s", 0, "2024-01-01 10:00:00 UTC", True),
+            (0x8042, "d", 1, size_m[0], True), (0x8043, "d", 1, size_m[1], True), (0x8044, "d", 1, 0.0, True),
+            (0x8045, "H", 1, 0, True), (0x8046, "I", 1, points, True), (0x8047, "I", 1, lines, True),
+            (0x8049, "d", 1, rate_hz, True)]
+    with tifffile.TiffWriter(path) as tiff:
+        tiff.write(np.zeros((16, 16), np.uint8), extratags=scan)
+        for fancy, retrace, raw, multiply, offset in pages:
+            tags = [(0x8050, "s", 0, fancy.split()[0].lower(), True), (0x8051, "H", 1, int(retrace), True),
+                    (0x8052, "s", 0, fancy, True), (0x8080, "I", 1, 2, True), (0x8081, "s", 0, "nominal", True)]
+            tiff.write(np.asarray(raw, np.int32), extratags=tags + _jpk_slot(0, "raw", "V", 1.0, 0.0)
+                       + _jpk_slot(1, "nominal", "m", multiply, offset))
+    return path
+
+
 def _grating(lines=24, points=32, shift_px=1.5, seed=0):
     """A ridge grating traced left → right and right → left: the retrace lags by ``shift_px`` pixels."""
     rng = np.random.default_rng(seed)
@@ -312,6 +343,25 @@ def test_nanoscope_scaling_directions_and_line_time(tmp_path):
     np.testing.assert_array_equal(afm.channels[1].data, r.data)
 
 
+def test_jpk_channels_directions_scaling_rows_and_line_time(tmp_path):
+    rng = np.random.default_rng(4)
+    raw = rng.integers(-2**20, 2**20, (10, 14))
+    path = _write_jpk(tmp_path / "scan.jpk", [("Height", False, raw, 1e-10, 2e-9), ("Height", True, raw[:, ::-1], 1e-10, 0.0),
+                                              ("Height (measured)", False, raw + 7, 1e-10, 0.0),
+                                              ("Height (measured)", True, raw - 7, 1e-10, 0.0)], rate_hz=2.0)
+    afm = read_afm_file(path)
+    assert afm.format == "jpk"
+    assert [(c.name, c.direction) for c in afm.channels] == [
+        ("Height", "trace"), ("Height", "retrace"), ("Height (measured)", "trace"), ("Height (measured)", "retrace")]
+    np.testing.assert_allclose(afm.channels[0].data, raw * 1e-10 + 2e-9)  # row 0 = the first line stored (scanned)
+    np.testing.assert_allclose(afm.channels[1].data, raw[:, ::-1] * 1e-10)
+    c = afm.channels[0]
+    assert c.unit == "m" and c.size_m == pytest.approx((5e-6, 4e-6)) and c.line_time_s == pytest.approx(0.25)
+    trace, retrace, picked = pick_height_pair(afm)
+    assert trace.name == "Height" and "Z drive/topography" in picked and "Height (measured)" in picked
+    assert pick_height_pair(afm, "height (measured)")[0].data[0, 0] == pytest.approx((raw[0, 0] + 7) * 1e-10)
+
+
 def test_park_scaling_direction_rows_and_line_time(tmp_path):
     rng = np.random.default_rng(3)
     raw = rng.integers(-20000, 20000, (12, 16)).astype("<i2")
@@ -423,12 +473,13 @@ def _bad_files(tmp_path):
     png = b"\x89PNG\r\n\x1a\n" + bytes(200)
     random = np.random.default_rng(7).integers(0, 256, 4000, dtype=np.uint8).tobytes()
     files = {"empty.nid": b"", "picture.nid": png, "noise.nid": random, "noise.ibw": random, "noise.spm": random,
-             "noise.gwy": random, "noise.tiff": random, "noise.003": b"\\*File list\r\n\\Version: 0x05120130\r\n", "table.xyz": b"1 2 3"}
+             "noise.gwy": random, "noise.tiff": random, "noise.jpk": random, "noise.003": b"\\*File list\r\n\\Version: 0x05120130\r\n", "table.xyz": b"1 2 3"}
     trace, retrace = _grating()
     made = [_write_gwy(tmp_path / "made.gwy", [("Z forward", trace, "m", 1e-6, "m"), ("Z backward", retrace, "m", 1e-6, "m")]),
             _write_ibw(tmp_path / "made.ibw", {"HeightTrace": trace, "HeightRetrace": retrace}, {"ScanRate": 1}),
             _write_nanoscope(tmp_path / "made.spm", [("Height", "Trace", np.zeros((16, 16), np.int16))]),
-            _write_park(tmp_path / "made.tiff", np.zeros((16, 16), "<i2"))]
+            _write_park(tmp_path / "made.tiff", np.zeros((16, 16), "<i2")),
+            _write_jpk(tmp_path / "made.jpk", [("Height", False, np.zeros((16, 16)), 1e-9, 0.0)])]
     for path in made:  # cut in half: gwyfile would loop forever, igor2 logs, pySPM reads past the end
         files[f"cut_{path.name}"] = path.read_bytes()[:path.stat().st_size // 2]
         path.unlink()
@@ -458,7 +509,7 @@ def test_bad_files_exit_2_in_inspect_and_diagnose_with_nothing_written(tmp_path)
 # --- end to end on an instrument file (small, so that the image diagnosis stays fast) ------------------
 
 def _made(fmt, path, trace, retrace):
-    """The same trace/retrace pair (m) written as a Nanoscope, Asylum or Gwyddion file, line time 0.5 s."""
+    """The same trace/retrace pair (m) written as a Nanoscope, Asylum, JPK or Gwyddion file, line time 0.5 s."""
     if fmt == "spm":
         to_raw = lambda h: np.round(h / (440.0 / 65536 * 20.0 * 1e-9)).astype(np.int16)  # noqa: E731
         return _write_nanoscope(path, [("Height", "Trace", to_raw(trace)), ("Height", "Retrace", to_raw(retrace))],
@@ -466,11 +517,14 @@ def _made(fmt, path, trace, retrace):
     if fmt == "ibw":
         return _write_ibw(path, {"HeightTrace": trace, "HeightRetrace": retrace},
                           {"FastScanSize": 3.2e-6, "SlowScanSize": 2.0e-6, "ScanRate": 1.0})
+    if fmt == "jpk":
+        return _write_jpk(path, [("Height", False, np.round(trace / 1e-12), 1e-12, 0.0),
+                                 ("Height", True, np.round(retrace / 1e-12), 1e-12, 0.0)], size_m=(3.2e-6, 2e-6))
     return _write_gwy(path, [("Z-Axis forward", trace, "m", 3.2e-6, "m"), ("Z-Axis backward", retrace, "m", 3.2e-6, "m")],
                       meta={"Time/Line": "500ms"})
 
 
-@pytest.mark.parametrize("fmt", ["spm", "ibw", "gwy"])
+@pytest.mark.parametrize("fmt", ["spm", "ibw", "gwy", "jpk"])
 def test_inspect_and_diagnose_measured_run_on_each_made_format(tmp_path, fmt, monkeypatch):
     trace, retrace = _grating(lines=20, points=32)
     path = _made(fmt, tmp_path / f"grating.{fmt}", trace, retrace)

@@ -5,7 +5,8 @@ within a rank:
 
 0. the Z drive / topography (``Topography``, ``Height``, ``Z-Axis``, ``Z``): what the Z loop
    commands, which is what ``afmsim`` records as height (:mod:`afmsim.scan.zloop`);
-1. a Z position sensor (``Z-Axis Sensor``, ``ZSensor``, ``Height Sensor``): the true height, but
+1. a Z position sensor (``Z-Axis Sensor``, ``ZSensor``, ``Height Sensor``, JPK's ``Height (measured)``):
+   the true height, but
    not what the simulated instrument records;
 2. any other length channel the vendor did not name as deflection, amplitude, …
 
@@ -28,7 +29,7 @@ def _rank(channel: Channel) -> int | None:
     low = channel.name.lower()
     if channel.quantity != "height" or channel.unit != "m" or re.search(r"2nd|lift|interleave|nap", low):
         return None
-    if re.search(r"sensor|sens\b", low):
+    if re.search(r"sensor|sens\b|measured", low):
         return 1
     if re.search(r"topo|height|z[-_ ]?axis|z[-_ ]?piezo|^z\b", low):
         return 0
