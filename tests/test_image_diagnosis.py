@@ -222,3 +222,36 @@ def test_loop_diagnosis_takes_modelled_effects_from_the_scenario(tmp_path):
     bad.write_text("sample: {kind: grating}\nstage: {creep: maybe}\n")
     result = runner.invoke(app, ["diagnose", "--measured", str(csv), "--scenario", str(bad), "--out", str(tmp_path / "x")])
     assert result.exit_code == 2 and "stage.creep" in result.output and not (tmp_path / "x").exists()
+
+
+def test_large_images_are_cut_to_the_budget_first_lines_and_pixel_block_means():
+    from afmsim.diagnosis.images.record import within_budget
+
+    rng = np.random.default_rng(2)
+    trace, retrace = rng.normal(size=(300, 520)), rng.normal(size=(300, 520))
+    rec = load_images({"trace": trace, "retrace": retrace, "scan_size_m": (5.2e-6, 3e-6), "line_rate_hz": 1.0})
+    cut, done = within_budget(rec)
+    assert cut.shape == (256, 173) and done["pixels_per_bin"] == 3 and done["pixels_used"] == 519
+    np.testing.assert_allclose(cut.trace, trace[:256, :519].reshape(256, 173, 3).mean(axis=2))
+    np.testing.assert_allclose(cut.retrace[:, 0], retrace[:256, :3].mean(axis=1))
+    assert cut.scan_size_m == pytest.approx((5.2e-6 * 519 / 520, 3e-6 * 256 / 300))
+    assert cut.line_rate_hz == rec.line_rate_hz  # the fast axis's speed is kept
+    assert within_budget(load_images(_pair()))[1] is None
+
+
+def test_diagnosis_of_a_large_image_is_the_diagnosis_of_its_cut(z_case, monkeypatch):
+    import afmsim.diagnosis.images.record as record_module
+    from afmsim.diagnosis.images.record import within_budget
+
+    rec = load_images(z_case["measured"])
+    monkeypatch.setattr(record_module, "MAX_LINES", rec.shape[0] - 4)
+    monkeypatch.setattr(record_module, "MAX_PIXELS", rec.shape[1] // 2)
+    report, summary = diagnose_images(rec)
+    cut, done = within_budget(rec)
+    assert report["images"]["cut"] == done and (report["images"]["lines"], report["images"]["pixels"]) == cut.shape
+    assert summary.startswith(f"Image cut to the diagnosis's {rec.shape[0] - 4} × {rec.shape[1] // 2} budget: "
+                              f"the first {rec.shape[0] - 4} of {rec.shape[0]} lines; pixels averaged in blocks of 2")
+    monkeypatch.setattr(record_module, "MAX_LINES", 10**6)
+    direct, _ = diagnose_images(cut)
+    assert direct["baseline"]["rms_gap"] == pytest.approx(report["baseline"]["rms_gap"], rel=1e-9)
+    assert direct["status"] == report["status"] and direct["verdict"] == report["verdict"]

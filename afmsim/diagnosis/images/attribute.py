@@ -48,7 +48,7 @@ from ..scenario_effects import as_scenario, modelled_effects
 from .fit import ImageDesign, ImageFit, fit_image, redundancy
 from .localise import localise_image
 from .model import Layout, ZLoop
-from .record import ImageRecord, load_images
+from .record import ImageRecord, budget_text, load_images, within_budget
 from .reference import scenario_reference
 
 __all__ = ["diagnose_images", "diagnose_image_record", "build_design", "split_lines", "effect_params", "sensor_noise",
@@ -238,6 +238,7 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
 
     ``candidates`` restricts the effects tried (default: every identifiable one not modelled).
     """
+    record, cut = within_budget(record)
     design = build_design(record, scenario, reference=reference, baseline=baseline)
     modelled = modelled_effects(scenario)
     front = ImageFront(design)
@@ -256,7 +257,7 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
                    "filled_pixels": record.filled_pixels, "reference": design.kind,
                    "train_lines": int(design.train.sum()), "heldout_lines": int(design.held.sum()),
                    "split": f"blocks of {block} lines from line 1, the 2nd and 4th of every 5 held out; line 0 "
-                            "(after the approach) in neither"},
+                            "(after the approach) in neither", **({"cut": cut} if cut else {})},
         "status": outcome["status"],
         "baseline": {"model": f"{design.baseline} rate-independent hysteresis per scan direction (Legendre), "
                               f"slow-axis scale, {design.kind} reference, "
@@ -277,7 +278,7 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
         "unexplained": outcome["unexplained"],
     }
     report["final"]["gap_to_sensor_noise"] = _ratio(report["final"]["rms_gap"], sensor)
-    summary = image_summary(report)
+    summary = (budget_text(cut) + "\n" if cut else "") + image_summary(report)
     if figure_path is not None:
         plot_image_diagnosis(design, base, att.final, figure_path,
                              title=f"{report['status']}: " + (", ".join(outcome["verdict"]) or "no effect named"))

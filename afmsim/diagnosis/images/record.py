@@ -20,6 +20,12 @@ Accepted inputs (heights in metres, rows = scan lines along +y, columns = pixels
   reversed); no scan offset (the vendors' offsets are not stage coordinates);
 * a mapping with the ``.npz`` keys.
 
+Large images are cut down before a diagnosis (:func:`within_budget`): at most :data:`MAX_LINES`
+lines (the first ones scanned) and :data:`MAX_PIXELS` pixels per line (block means of neighbouring
+pixels). The diagnosis simulates every sample of the frame: 256 × 256 takes 45 s and 2.5 GB, 512 ×
+512 took 8.5 min and 8.5 GB (a real 256 × 256 Nanosurf image resampled, 2-CPU machine), so a
+1,024 × 1,024 file would not finish.
+
 Every problem raises :class:`ValueError` with one line naming the field. Isolated non-finite
 pixels (no neighbour along the line also bad) are filled by linear interpolation along the line;
 runs of two or more, or a bad first/last pixel, are refused.
@@ -27,15 +33,19 @@ runs of two or more, or a bad first/last pixel, are refused.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ImageRecord", "load_images", "MIN_LINES", "MIN_PIXELS"]
+__all__ = ["ImageRecord", "load_images", "within_budget", "MIN_LINES", "MIN_PIXELS", "MAX_LINES", "MAX_PIXELS"]
 
 MIN_LINES = 16
 MIN_PIXELS = 16
+#: Largest image a diagnosis works on (:func:`within_budget`): the size of the real files it was
+#: developed on (256 × 256 Nanosurf images, 45 s each).
+MAX_LINES = 256
+MAX_PIXELS = 256
 REQUIRED = ("trace", "retrace", "scan_size_m", "line_rate_hz")
 
 
@@ -188,6 +198,46 @@ def _columns(afm, channel: str | None, line_rate_hz: float | None) -> tuple[dict
     cols = {"trace": trace.data, "retrace": retrace.data, "scan_size_m": trace.size_m, "line_rate_hz": rate,
             "scan_offset_m": offset}
     return cols, picked, label
+
+
+def within_budget(record: ImageRecord) -> tuple[ImageRecord, dict | None]:
+    """``record`` cut to at most :data:`MAX_LINES` × :data:`MAX_PIXELS`, and what was done (None: nothing).
+
+    Lines: the first :data:`MAX_LINES` scanned, the scan height cut in proportion; they keep the
+    frame's start, the slow axis's path from rest and every line's timing, so the model of the cut
+    frame is the model of the instrument's first lines. Pixels: block means of ``k`` neighbours
+    (``k = ⌈pixels / MAX_PIXELS⌉``) along each line, trace and retrace alike; the line time, hence
+    the fast axis's speed, stays as recorded. Pixels beyond the last whole block (fewer than ``k``)
+    are dropped from the right end and the scan width with them.
+    """
+    ny, nx = record.shape
+    if ny <= MAX_LINES and nx <= MAX_PIXELS:
+        return record, None
+    lines = min(ny, MAX_LINES)
+    k = -(-nx // MAX_PIXELS)
+    kept = nx - nx % k
+
+    def cut(image: np.ndarray) -> np.ndarray:
+        return image[:lines, :kept].reshape(lines, kept // k, k).mean(axis=2)
+
+    size = (record.scan_size_m[0] * kept / nx, record.scan_size_m[1] * lines / ny)
+    done = {"lines_used": lines, "of_lines": ny, "pixels_per_bin": k, "pixels_used": kept, "of_pixels": nx,
+            "scan_size_m": list(size)}
+    return replace(record, trace=cut(record.trace), retrace=cut(record.retrace), scan_size_m=size), done
+
+
+def budget_text(done: dict) -> str:
+    """One line on how :func:`within_budget` cut an image."""
+    parts = []
+    if done["lines_used"] < done["of_lines"]:
+        parts.append(f"the first {done['lines_used']} of {done['of_lines']} lines")
+    if done["pixels_per_bin"] > 1:
+        dropped = done["of_pixels"] - done["pixels_used"]
+        parts.append(f"pixels averaged in blocks of {done['pixels_per_bin']} ({done['of_pixels']} → "
+                     f"{done['pixels_used'] // done['pixels_per_bin']} per line"
+                     + (f", the last {dropped} dropped" if dropped else "") + ")")
+    return (f"Image cut to the diagnosis's {MAX_LINES} × {MAX_PIXELS} budget: " + "; ".join(parts)
+            + f"; scan window {done['scan_size_m'][0] * 1e6:.3g} × {done['scan_size_m'][1] * 1e6:.3g} µm.")
 
 
 def load_images(source, *, channel: str | None = None, line_rate_hz: float | None = None,
