@@ -167,6 +167,27 @@ def test_spreadsheet_exports_load_like_the_plain_csv(tmp_path):
     assert "\n" not in str(info.value) and "junk.jpk" in str(info.value)
 
 
+def test_instrument_exports_with_words_and_comment_lines_load(tmp_path):
+    """Settings as comment lines before the header and quantities named in words ("Time (s)",
+    "Drive voltage [V]", "Displacement in nm", "Position-Y (µm)"): the same SI record."""
+    t, v, x = _arrays()
+    reference = load_record((t, v, x, 0.01 * x))
+    path = tmp_path / "export.txt"
+    head = ["# Instrument: capacitive sensor, 2 kHz", "% exported 2026-11-28", "",
+            "Time (s)\tDrive voltage [V]\tDisplacement in nm\tPosition-Y (µm)\tStatus"]
+    rows = [f"{a:.12g}\t{b:.12g}\t{c * 1e9:.12g}\t{c * 1e4:.12g}\t1" for a, b, c in zip(t, v, x)]
+    path.write_text("\n".join(head + rows) + "\n", encoding="utf-8")
+    record = load_record(path)
+    assert np.allclose(record.t, reference.t, rtol=1e-9) and np.allclose(record.v, reference.v, rtol=1e-9)
+    assert np.allclose(record.x, reference.x, rtol=1e-9, atol=1e-18)
+    assert np.allclose(record.y, reference.y, rtol=1e-9, atol=1e-18)
+    unnamed = tmp_path / "unnamed.csv"
+    unnamed.write_text("Time (s),Signal A (V),Signal B (nm)\n" + "\n".join(f"{a},{b},{c}" for a, b, c in zip(t, v, x)))
+    with pytest.raises(ValueError, match=r"lacks column\(s\) \['v_V', 'x_m'\]") as info:
+        load_record(unnamed)
+    assert "\n" not in str(info.value)
+
+
 def test_unit_labelled_headers_are_converted_to_si(tmp_path):
     """Headers in other units (µm, ms, mV; underscore or brackets) give the SI record; an extra column
     is ignored; a unit not understood, or a quantity given twice, is one line naming the column."""

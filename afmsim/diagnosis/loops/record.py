@@ -1,10 +1,13 @@
 """Reading and validating a measured loop record (``t_s, v_V, x_m`` [, ``y_m``]).
 
 A CSV file's columns may be separated by commas, semicolons, tabs or white space (spreadsheet exports),
-and a UTF-8 byte-order mark before the header is ignored. Each header names a quantity (``t``, ``v``,
-``x``, ``y``, any case) and its unit, after an underscore or in brackets — ``x_m``, ``x_um``,
-``x [µm]``, ``t (ms)``, ``V_mV`` — from :data:`UNITS`; values are converted to SI on reading (columns
-with other names are ignored).
+and a UTF-8 byte-order mark before the header is ignored, as are comment lines before it (starting
+with ``#``, ``%`` or ``//``, as instrument software writes its settings). Each header names a
+quantity — ``t``, ``v``, ``x``, ``y`` or a word from :data:`NAMES` (``time``, ``voltage``,
+``displacement``, ``position``…; any case) — and its unit, after an underscore, in brackets or
+after "in" — ``x_m``, ``x_um``, ``x [µm]``, ``t (ms)``, ``V_mV``, ``Time (s)``, ``Displacement in
+nm`` — from :data:`UNITS`; values are converted to SI on reading (columns with other names are
+ignored).
 
 Every problem with the input raises :class:`ValueError` with one line that names it. Records
 that are not exactly uniformly sampled (jitter ≤ 1 % of the median interval) are accepted as is
@@ -24,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["LoopRecord", "load_record", "MIN_SAMPLES", "MAX_SAMPLES", "UNITS"]
+__all__ = ["LoopRecord", "load_record", "MIN_SAMPLES", "MAX_SAMPLES", "UNITS", "NAMES"]
 
 MIN_SAMPLES = 200
 MAX_SAMPLES = 8000
@@ -37,7 +40,18 @@ UNITS = {
 }
 UNITS["y"] = UNITS["x"]
 _SI_NAME = {"t": "t_s", "v": "v_V", "x": "x_m", "y": "y_m"}
-_HEADER = re.compile(r"^([tvxyTVXY])\s*(?:_\s*|\[\s*|\(\s*)([^\]\)\s]+)\s*[\]\)]?$")
+#: Words a header may use for each quantity (lower case; ``x``/``y`` displacement of the driven and
+#: the cross axis). "Position"/"displacement" without an axis is the driven axis.
+NAMES = {
+    "t": ("t", "time"),
+    "v": ("v", "u", "voltage", "drive", "drive voltage", "input voltage", "piezo voltage", "applied voltage"),
+    "x": ("x", "displacement", "position", "x displacement", "x position", "sensor", "x sensor",
+          "displacement x", "position x"),
+    "y": ("y", "y displacement", "y position", "y sensor", "displacement y", "position y", "cross axis"),
+}
+_QUANTITY_OF = {word: q for q, words in NAMES.items() for word in words}
+_HEADER = re.compile(r"^([A-Za-z][A-Za-z \-]*?)\s*(?:_\s*|\[\s*|\(\s*|\s+in\s+)([^\]\)\s]+)\s*[\]\)]?$")
+_COMMENT = ("#", "%", "//")
 
 
 @dataclass(frozen=True)
@@ -74,14 +88,20 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
         raise ValueError(f"record file not found: {path}")
     try:
         with open(path, encoding="utf-8-sig") as fh:  # -sig: a spreadsheet's byte-order mark is not a name
-            header = fh.readline().strip()
+            skipped, header = 0, ""
+            for line in fh:
+                if line.strip() and not line.lstrip().startswith(_COMMENT):
+                    header = line.strip()
+                    break
+                skipped += 1
     except UnicodeDecodeError:
         raise ValueError(f"record {path.name} is not a text CSV file") from None
     delimiter = _delimiter(header)
     names = [h.strip() for h in header.split(delimiter)]
     columns = _header_columns(path.name, names)
     try:
-        data = np.genfromtxt(path, delimiter=delimiter, skip_header=1, dtype=np.float64, ndmin=2, encoding="utf-8-sig")
+        data = np.genfromtxt(path, delimiter=delimiter, skip_header=skipped + 1, dtype=np.float64, ndmin=2,
+                             encoding="utf-8-sig")
     except Exception as exc:  # pragma: no cover - numpy message varies
         raise ValueError(f"record {path.name} is not numeric CSV: {exc}") from None
     if data.ndim != 2 or data.shape[1] != len(names):
@@ -97,9 +117,10 @@ def _header_columns(file_name: str, names: list[str]) -> dict[str, tuple[int, fl
     not_understood = []
     for k, name in enumerate(names):
         match = _HEADER.match(name)
-        if match is None:
+        quantity = _QUANTITY_OF.get(re.sub(r"[\s\-]+", " ", match.group(1)).strip().lower()) if match else None
+        if quantity is None:
             continue
-        quantity, unit = match.group(1).lower(), match.group(2)
+        unit = match.group(2)
         if unit not in UNITS[quantity]:
             not_understood.append(f"{name!r} ({quantity} in {', '.join(UNITS[quantity])})")
             continue
@@ -111,7 +132,8 @@ def _header_columns(file_name: str, names: list[str]) -> dict[str, tuple[int, fl
     if missing:
         hint = f"; units not understood: {'; '.join(not_understood)}" if not_understood else ""
         raise ValueError(f"record {file_name} lacks column(s) {missing}; header must contain t_s,v_V,x_m[,y_m] "
-                         f"(or the same quantities in other units, e.g. x_um, t [ms]), got {names}{hint}")
+                         f"(or the same quantities in other units or words, e.g. x_um, t [ms], Time (s), "
+                         f"Displacement (nm)), got {names}{hint}")
     return columns
 
 
