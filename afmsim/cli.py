@@ -511,6 +511,8 @@ def calibrate_command(
     scenario: Optional[Path] = typer.Option(None, "--scenario", help="Scenario whose sample (grating/lenses) gives the period."),
     channel: Optional[str] = typer.Option(None, help="Height channel name (default: the topography/Z channel)."),
     line_time_s: Optional[float] = typer.Option(None, "--line-time-s", help="Time of one scan direction, s (if the file lacks it)."),
+    retrace: Optional[Path] = typer.Option(None, "--retrace", help="A second image file with the other scan "
+                                                                   "direction (Park .tiff: one direction per file)."),
 ):
     """Fit a virtual twin of a real AFM from its own trace/retrace images or loop record (issue 12).
 
@@ -520,7 +522,7 @@ def calibrate_command(
 
     try:
         report = calibrate(measured, out, pitch_m=None if pitch_um is None else pitch_um * 1e-6, scenario=scenario,
-                           channel=channel, line_time_s=line_time_s)
+                           channel=channel, line_time_s=line_time_s, retrace=retrace)
     except (ValueError, FileExistsError) as error:
         _fail(str(error))
     except OSError as error:
@@ -543,6 +545,8 @@ def predict_command(
     channel: Optional[str] = typer.Option(None, help="Height channel name (default: the topography/Z channel)."),
     line_time_s: Optional[float] = typer.Option(None, "--line-time-s", help="Time of one scan direction, s (if the file lacks it)."),
     seed: int = typer.Option(0, min=0, help="Seed of the Z-loop noise."),
+    retrace: Optional[Path] = typer.Option(None, "--retrace", help="A second image file with the other scan "
+                                                                   "direction (Park .tiff: one direction per file)."),
 ):
     """Predict another measurement of the instrument on its twin and on afmsim's default stage (issue 12).
 
@@ -551,7 +555,8 @@ def predict_command(
     from afmsim.twin import predict
 
     try:
-        result = predict(instrument, measured, out, channel=channel, line_time_s=line_time_s, seed=seed)
+        result = predict(instrument, measured, out, channel=channel, line_time_s=line_time_s, seed=seed,
+                         retrace=retrace)
     except (ValueError, FileExistsError) as error:
         _fail(str(error))
     except OSError as error:

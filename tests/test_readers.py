@@ -20,6 +20,8 @@ import afmsim.readers as readers
 from afmsim.readers import ReaderError, pick_height_pair, read_afm_file
 from afmsim.readers.channels import quantity_of, split_direction, to_si
 
+from vendor_files import write_jpk, write_park
+
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real-data" / "afm"
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="../shared/real-data/afm not present")
 runner = CliRunner()
@@ -88,67 +90,6 @@ def _write_nanoscope(path, layers, *, size_um=5.0, rate_hz=1.0, frame="Up", zsen
     header = ("\r\n".join(head + ["\\*File list end"]) + "\r\n").encode("latin-1")
     data = b"".join(np.asarray(img, dtype="<i2").tobytes() for _, _, img in layers)
     path.write_bytes(header + b"\x1a" * (offset - len(header)) + data)
-    return path
-
-
-def _utf16(text: str, n: int) -> list[int]:
-    codes = [ord(c) for c in text][:n]
-    return codes + [0] * (n - len(codes))
-
-
-def _write_park(path, raw, *, name="Z Height", forward=True, up=True, size_um=(10.0, 5.0), rate_hz=0.5,
-                gain=1e-3, scale=1.0, offset=0.0, unit="um"):
-    """A Park Systems TIFF (header version 2) written with ``tifffile``: an 8-bit picture plus the PSIA
-    private tags (50432 magic, 50433 version, 50434 data, 50435 header; the header's field layout as
-    ``pspylib``'s ``TiffReader`` and ``SurfaceTopography``'s ``PSReader`` document it). ``raw``:
-    (lines, pixels) int16, int32 or float32, bottom line first; heights are gain·(scale·raw + offset)."""
-    import struct
-
-    import tifffile
-
-    lines, points = raw.shape
-    code = {np.dtype("<i2"): 0, np.dtype("<i4"): 1, np.dtype("<f4"): 2}[raw.dtype]
-    fields = [("<i", 0), ("<32H", *_utf16(name, 32)), ("<8H", *_utf16("Contact", 8)), ("<d", 0.0), ("<2i", 0, 0),
-              ("<2i", points, lines), ("<d", 0.0), ("<i", 0), ("<d", 0.0), ("<3i", int(forward), int(up), 0),
-              ("<6d", *size_um, 0.0, 0.0, rate_hz, 0.0), ("<8H", *_utf16("nN", 8)), ("<5d", 0.0, 0.0, gain, scale, offset),
-              ("<8H", *_utf16(unit, 8)), ("<6i", 0, 0, 0, 0, 0, 0), ("<2d", 0.0, 0.0), ("<24H", *[0] * 24),
-              ("<3i", code, 0, 0), ("<3d", 0.0, 0.0, 0.0), ("<16H", *_utf16("tip", 16)), ("<64x",)]
-    header = b"".join(struct.pack(f[0], *f[1:]) for f in fields)
-    data = np.ascontiguousarray(raw).tobytes()
-    tags = [(50432, 4, 1, 0x0E031301, True), (50433, 4, 1, 0x1000002, True), (50434, 1, len(data), data, True),
-            (50435, 1, len(header), header, True)]
-    tifffile.imwrite(path, np.zeros(raw.shape, np.uint8), extratags=tags)
-    return path
-
-
-def _jpk_slot(k: int, name: str, unit: str, multiply: float, offset: float) -> list:
-    base = 0x8090 + k * 0x30  # slot k's tag block (stride 0x30), as JPK's image spec and SurfaceTopography lay it out
-    return [(base, "s", 0, name, True), (base + 0x01, "s", 0, "scaled" if k else "raw", True),
-            (base + 0x02, "s", 0, "raw" if k else "none", True), (base + 0x10, "s", 0, name, True),
-            (base + 0x11, "s", 0, name, True), (base + 0x12, "s", 0, unit, True),
-            (base + 0x13, "s", 0, "LinearScaling", True), (base + 0x14, "d", 1, multiply, True),
-            (base + 0x15, "d", 1, offset, True)]
-
-
-def _write_jpk(path, pages, *, size_m=(5e-6, 4e-6), rate_hz=1.0):
-    """A JPK image scan written with ``tifffile``: a thumbnail page with the scan's tags, then one page per
-    ``(fancy name, retrace, raw int32 (lines, pixels) first line scanned first, multiply, offset)``, its
-    ``nominal`` slot in m. Both ``SurfaceTopography``'s ``JPKReader`` and AFMReader's ``load_jpk`` read
-    this layout to the same heights (checked when the fixture was written)."""
-    import tifffile
-
-    lines, points = pages[0][2].shape
-    scan = [(0x8000, "s", 0, "1.0", True), (0x8003, "s", 0, "2024-01-01 10:00:00 UTC", True),
-            (0x8042, "d", 1, size_m[0], True), (0x8043, "d", 1, size_m[1], True), (0x8044, "d", 1, 0.0, True),
-            (0x8045, "H", 1, 0, True), (0x8046, "I", 1, points, True), (0x8047, "I", 1, lines, True),
-            (0x8049, "d", 1, rate_hz, True)]
-    with tifffile.TiffWriter(path) as tiff:
-        tiff.write(np.zeros((16, 16), np.uint8), extratags=scan)
-        for fancy, retrace, raw, multiply, offset in pages:
-            tags = [(0x8050, "s", 0, fancy.split()[0].lower(), True), (0x8051, "H", 1, int(retrace), True),
-                    (0x8052, "s", 0, fancy, True), (0x8080, "I", 1, 2, True), (0x8081, "s", 0, "nominal", True)]
-            tiff.write(np.asarray(raw, np.int32), extratags=tags + _jpk_slot(0, "raw", "V", 1.0, 0.0)
-                       + _jpk_slot(1, "nominal", "m", multiply, offset))
     return path
 
 
@@ -346,7 +287,7 @@ def test_nanoscope_scaling_directions_and_line_time(tmp_path):
 def test_jpk_channels_directions_scaling_rows_and_line_time(tmp_path):
     rng = np.random.default_rng(4)
     raw = rng.integers(-2**20, 2**20, (10, 14))
-    path = _write_jpk(tmp_path / "scan.jpk", [("Height", False, raw, 1e-10, 2e-9), ("Height", True, raw[:, ::-1], 1e-10, 0.0),
+    path = write_jpk(tmp_path / "scan.jpk", [("Height", False, raw, 1e-10, 2e-9), ("Height", True, raw[:, ::-1], 1e-10, 0.0),
                                               ("Height (measured)", False, raw + 7, 1e-10, 0.0),
                                               ("Height (measured)", True, raw - 7, 1e-10, 0.0)], rate_hz=2.0)
     afm = read_afm_file(path)
@@ -365,14 +306,14 @@ def test_jpk_channels_directions_scaling_rows_and_line_time(tmp_path):
 def test_park_scaling_direction_rows_and_line_time(tmp_path):
     rng = np.random.default_rng(3)
     raw = rng.integers(-20000, 20000, (12, 16)).astype("<i2")
-    up = read_afm_file(_write_park(tmp_path / "fwd.tiff", raw, gain=2e-3, rate_hz=0.5, size_um=(8.0, 6.0)))
+    up = read_afm_file(write_park(tmp_path / "fwd.tiff", raw, gain=2e-3, rate_hz=0.5, size_um=(8.0, 6.0)))
     assert up.format == "park" and len(up.channels) == 1
     (c,) = up.channels
     assert (c.name, c.direction, c.quantity, c.unit) == ("Z Height", "forward", "height", "m")
     np.testing.assert_allclose(c.data, raw * 2e-3 * 1e-6)  # gain (µm per unit) · raw; bottom line first = scanned first
     assert c.size_m == pytest.approx((8e-6, 6e-6)) and c.line_time_s == pytest.approx(1.0)  # 0.5 Hz trace+retrace
     flt = rng.normal(0, 100, (12, 16)).astype("<f4")  # float data in nm, scale and offset as Gwyddion applies them
-    down = read_afm_file(_write_park(tmp_path / "bwd.tif", flt, forward=False, up=False, gain=1.5, scale=2.0,
+    down = read_afm_file(write_park(tmp_path / "bwd.tif", flt, forward=False, up=False, gain=1.5, scale=2.0,
                                      offset=3.0, unit="nm", rate_hz=2.0))
     (d,) = down.channels
     assert d.direction == "backward" and down.metadata["slow_scan"] == "down"
@@ -385,12 +326,12 @@ def test_park_refusals_are_one_line(tmp_path):
 
     plain = tmp_path / "photo.tiff"
     tifffile.imwrite(plain, np.zeros((8, 8), np.uint8))
-    volts = _write_park(tmp_path / "amplitude.tiff", np.zeros((8, 8), "<i2"), name="Amplitude", unit="V")
+    volts = write_park(tmp_path / "amplitude.tiff", np.zeros((8, 8), "<i2"), name="Amplitude", unit="V")
     for path, words in ((plain, "without Park Systems' PSIA tags"), (volts, "only length channels")):
         with pytest.raises(ReaderError, match=words) as info:
             read_afm_file(path)
         assert "\n" not in str(info.value)
-    fwd = _write_park(tmp_path / "fwd.tiff", np.zeros((8, 8), "<i2"))
+    fwd = write_park(tmp_path / "fwd.tiff", np.zeros((8, 8), "<i2"))
     with pytest.raises(ReaderError, match="same file is given twice"):
         readers.read_afm_files(fwd, fwd)
 
@@ -398,9 +339,9 @@ def test_park_refusals_are_one_line(tmp_path):
 def test_park_forward_and_backward_files_diagnose_as_one_pair(tmp_path):
     trace, retrace = _grating(lines=20, points=32)
     nm = 1e-3  # gain: µm per stored unit (1 nm)
-    fwd = _write_park(tmp_path / "grating_fwd.tiff", np.round(trace / 1e-9).astype("<i2"), gain=nm,
+    fwd = write_park(tmp_path / "grating_fwd.tiff", np.round(trace / 1e-9).astype("<i2"), gain=nm,
                       size_um=(3.2, 2.0), rate_hz=1.0)
-    bwd = _write_park(tmp_path / "grating_bwd.tiff", np.round(retrace / 1e-9).astype("<i2"), gain=nm,
+    bwd = write_park(tmp_path / "grating_bwd.tiff", np.round(retrace / 1e-9).astype("<i2"), gain=nm,
                       forward=False, size_um=(3.2, 2.0), rate_hz=1.0)
     listing = json.loads(runner.invoke(app, ["inspect", str(fwd), "--json"]).output)
     assert listing["format"] == "park" and listing["channels"][0]["line_time_s"] == pytest.approx(0.5)
@@ -478,8 +419,8 @@ def _bad_files(tmp_path):
     made = [_write_gwy(tmp_path / "made.gwy", [("Z forward", trace, "m", 1e-6, "m"), ("Z backward", retrace, "m", 1e-6, "m")]),
             _write_ibw(tmp_path / "made.ibw", {"HeightTrace": trace, "HeightRetrace": retrace}, {"ScanRate": 1}),
             _write_nanoscope(tmp_path / "made.spm", [("Height", "Trace", np.zeros((16, 16), np.int16))]),
-            _write_park(tmp_path / "made.tiff", np.zeros((16, 16), "<i2")),
-            _write_jpk(tmp_path / "made.jpk", [("Height", False, np.zeros((16, 16)), 1e-9, 0.0)])]
+            write_park(tmp_path / "made.tiff", np.zeros((16, 16), "<i2")),
+            write_jpk(tmp_path / "made.jpk", [("Height", False, np.zeros((16, 16)), 1e-9, 0.0)])]
     for path in made:  # cut in half: gwyfile would loop forever, igor2 logs, pySPM reads past the end
         files[f"cut_{path.name}"] = path.read_bytes()[:path.stat().st_size // 2]
         path.unlink()
@@ -518,7 +459,7 @@ def _made(fmt, path, trace, retrace):
         return _write_ibw(path, {"HeightTrace": trace, "HeightRetrace": retrace},
                           {"FastScanSize": 3.2e-6, "SlowScanSize": 2.0e-6, "ScanRate": 1.0})
     if fmt == "jpk":
-        return _write_jpk(path, [("Height", False, np.round(trace / 1e-12), 1e-12, 0.0),
+        return write_jpk(path, [("Height", False, np.round(trace / 1e-12), 1e-12, 0.0),
                                  ("Height", True, np.round(retrace / 1e-12), 1e-12, 0.0)], size_m=(3.2e-6, 2e-6))
     return _write_gwy(path, [("Z-Axis forward", trace, "m", 3.2e-6, "m"), ("Z-Axis backward", retrace, "m", 3.2e-6, "m")],
                       meta={"Time/Line": "500ms"})

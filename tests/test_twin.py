@@ -296,3 +296,27 @@ def test_shift_profile_matches_edge_crossings_of_a_grating_scan():
     for w in range(4):  # a window holding two edges reports one of them (the median line's best match)
         assert np.min(np.abs(edge_shift[window == w] - estimate.shift_m[w])) < 0.5 * dx
     assert np.min(estimate.shift_m) < -6 * dx
+
+
+def test_park_pair_in_two_files_calibrates_like_one_file(tmp_path):
+    """Park writes one direction per file: load_measured_pair(fwd, retrace=bwd) is the pair, and the
+    CLI says in one line what is missing without --retrace."""
+    from vendor_files import write_park
+
+    rng = np.random.default_rng(8)
+    x = np.arange(64)
+    trace = np.tile(100 * (np.sin(2 * np.pi * x / 16) > 0), (12, 1)) + rng.integers(-2, 3, (12, 64))
+    retrace = np.roll(trace, 2, axis=1)
+    fwd = write_park(tmp_path / "g_fwd.tiff", trace.astype("<i2"), size_um=(8.0, 1.5), rate_hz=1.0)
+    bwd = write_park(tmp_path / "g_bwd.tiff", retrace.astype("<i2"), forward=False, size_um=(8.0, 1.5), rate_hz=1.0)
+    pair = load_measured_pair(fwd, retrace=bwd)
+    np.testing.assert_allclose(pair.trace, trace * 1e-9)  # gain 1e-3 µm per stored unit
+    np.testing.assert_allclose(pair.retrace, retrace * 1e-9)
+    assert pair.scan.line_time_s == pytest.approx(0.5) and pair.scan.size_m == pytest.approx((8e-6, 1.5e-6))
+    runner = CliRunner()
+    alone = runner.invoke(app, ["calibrate", "--measured", str(fwd), "--out", str(tmp_path / "a")])
+    assert alone.exit_code == 2 and "forward scan only" in alone.output and not (tmp_path / "a").exists()
+    csv = tmp_path / "loop.csv"
+    csv.write_text("t_s,v_V,x_m\n0,0,0\n")
+    wrong = runner.invoke(app, ["calibrate", "--measured", str(csv), "--retrace", str(bwd), "--out", str(tmp_path / "b")])
+    assert wrong.exit_code == 2 and "--retrace goes with an image file" in wrong.output

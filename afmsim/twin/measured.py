@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from afmsim.readers import ReaderError, pick_height_pair, read_afm_file
+from afmsim.readers import ReaderError, pick_height_pair, read_afm_files
 
 from .raster import RealScan
 
@@ -39,22 +39,24 @@ def overscan_from_metadata(metadata: dict) -> float | None:
     return None
 
 
-def load_measured_pair(path, channel: str | None = None, line_time_s: float | None = None) -> MeasuredPair:
+def load_measured_pair(path, channel: str | None = None, line_time_s: float | None = None,
+                       retrace=None) -> MeasuredPair:
     """Read ``path``'s height trace/retrace; ``line_time_s`` (one direction, s) overrides or supplies the header's.
+    ``retrace``: a second file with the other scan direction (Park writes one direction per file).
 
     Raises ``ValueError`` (one line) when the file cannot be read, has one direction only, no line
     time, or non-finite heights in more than 1 % of the pixels (the rest are filled from their row).
     """
     try:
-        afm = read_afm_file(path)
-        trace, retrace, picked = pick_height_pair(afm, channel)
+        afm = read_afm_files(path, *([] if retrace is None else [retrace]))
+        trace, backward, picked = pick_height_pair(afm, channel)
     except ReaderError as error:
         raise ValueError(str(error)) from None
     line_time = line_time_s if line_time_s is not None else trace.line_time_s
     if line_time is None or not line_time > 0:
         raise ValueError(f"{Path(path).name}: the file gives no line time; pass --line-time-s (one scan direction, s)")
     images = []
-    for channel_data in (trace, retrace):
+    for channel_data in (trace, backward):
         z = np.array(channel_data.data, dtype=np.float64)
         bad = ~np.isfinite(z)
         if bad.mean() > 0.01:

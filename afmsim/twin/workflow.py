@@ -61,14 +61,17 @@ def _provenance(fitted: list[str], header: list[str]) -> dict:
 
 
 def calibrate(measured, out, *, pitch_m: float | None = None, scenario=None, channel: str | None = None,
-              line_time_s: float | None = None, seed: int = 0) -> dict:
-    """Calibrate a twin from ``measured`` and write ``out`` (see the module docstring); returns calibration.json."""
+              line_time_s: float | None = None, seed: int = 0, retrace=None) -> dict:
+    """Calibrate a twin from ``measured`` and write ``out`` (see the module docstring); returns calibration.json.
+    ``retrace``: a second image file with the other scan direction (Park writes one direction per file)."""
     if pitch_m is not None and scenario is not None:
         raise ValueError("give --pitch-um or --scenario, not both")
     if pitch_m is not None and not (0 < pitch_m < 1e-3):
         raise ValueError(f"--pitch-um must be in (0, 1000) µm, got {pitch_m * 1e6:g}")
     if (pitch_m is not None or scenario is not None) and _is_loop_record(measured):
         raise ValueError("--pitch-um/--scenario apply to image pairs, not to a loop record")
+    if retrace is not None and _is_loop_record(measured):
+        raise ValueError("--retrace goes with an image file, not with a loop record")
     if scenario is not None:
         pitch_m = pitch_from_scenario(scenario)
     out = Path(out)
@@ -81,7 +84,7 @@ def calibrate(measured, out, *, pitch_m: float | None = None, scenario=None, cha
                                                         "provenance": _provenance(loop.fitted, [])})
         report, arrays = loop.report, None
     else:
-        pair = load_measured_pair(measured, channel, line_time_s)
+        pair = load_measured_pair(measured, channel, line_time_s, retrace)
         header = []
         start = Instrument(name=name, calibrated_from=str(measured))
         # a scan wider than afmsim's 100 µm travel gets a travel with 30 % to spare (not constrained)
@@ -97,7 +100,8 @@ def calibrate(measured, out, *, pitch_m: float | None = None, scenario=None, cha
             "provenance": _provenance([*FITTED, "z_loop.height_noise_nm"], header)})
         report, arrays = _image_report(cal, pair, instrument, seed)
     report["not_constrained"] = sorted(k for k, v in instrument.provenance.items() if v == "default")
-    config = {"measured": str(measured), "pitch_m": pitch_m, "scenario": str(scenario) if scenario else None,
+    config = {"measured": str(measured), **({"retrace": str(retrace)} if retrace is not None else {}),
+              "pitch_m": pitch_m, "scenario": str(scenario) if scenario else None,
               "channel": channel, "line_time_s": line_time_s}
     with run_folder(out, config=config, seed=seed, command="calibrate") as folder:
         dump_instrument(instrument, folder / "instrument.yaml")
@@ -138,8 +142,9 @@ def _image_report(cal, pair, instrument: Instrument, seed: int) -> tuple[dict, d
 
 
 def predict(instrument_path, measured, out, *, channel: str | None = None, line_time_s: float | None = None,
-            seed: int = 0) -> dict:
-    """Predict ``measured`` on the twin in ``instrument_path``; write ``out``; returns prediction.json."""
+            seed: int = 0, retrace=None) -> dict:
+    """Predict ``measured`` on the twin in ``instrument_path``; write ``out``; returns prediction.json.
+    ``retrace``: a second image file with the other scan direction (Park writes one direction per file)."""
     try:
         instrument = load_instrument(instrument_path)
     except InstrumentError as error:
@@ -148,14 +153,16 @@ def predict(instrument_path, measured, out, *, channel: str | None = None, line_
     if out.exists():
         raise ValueError(f"output folder {out} already exists: choose another --out or remove it")
     config = {"instrument": str(instrument_path), "measured": str(measured), "channel": channel,
-              "line_time_s": line_time_s}
+              "line_time_s": line_time_s, **({"retrace": str(retrace)} if retrace is not None else {})}
+    if retrace is not None and _is_loop_record(measured):
+        raise ValueError("--retrace goes with an image file, not with a loop record")
     if _is_loop_record(measured):
         prediction, figure_data = predict_loop(instrument, measured)
         with run_folder(out, config=config, seed=seed, command="predict") as folder:
             write_json(folder / "prediction.json", prediction)
             loop_figure(folder / "prediction.png", *figure_data, title=f"{Path(measured).stem}: held-out prediction")
         return prediction
-    pair = load_measured_pair(measured, channel, line_time_s)
+    pair = load_measured_pair(measured, channel, line_time_s, retrace)
     prediction, arrays = predict_images(instrument, pair.trace, pair.retrace, pair.scan, seed=seed)
     prediction = {"instrument": str(instrument_path), "measured": str(pair.path), "picked": pair.picked, **prediction}
     with run_folder(out, config=config, seed=seed, command="predict") as folder:

@@ -1,0 +1,63 @@
+"""Vendor AFM files written for the tests with maintained writers (``tifffile``): Park Systems TIFF
+and JPK image scans, whose layouts the readers' documentation (``pspylib``, ``SurfaceTopography``,
+AFMReader) describes."""
+
+import struct
+
+import numpy as np
+import tifffile
+
+
+def _utf16(text: str, n: int) -> list[int]:
+    codes = [ord(c) for c in text][:n]
+    return codes + [0] * (n - len(codes))
+
+
+def write_park(path, raw, *, name="Z Height", forward=True, up=True, size_um=(10.0, 5.0), rate_hz=0.5,
+               gain=1e-3, scale=1.0, offset=0.0, unit="um"):
+    """A Park Systems TIFF (header version 2) written with ``tifffile``: an 8-bit picture plus the PSIA
+    private tags (50432 magic, 50433 version, 50434 data, 50435 header; the header's field layout as
+    ``pspylib``'s ``TiffReader`` and ``SurfaceTopography``'s ``PSReader`` document it). ``raw``:
+    (lines, pixels) int16, int32 or float32, bottom line first; heights are gain·(scale·raw + offset)."""
+    lines, points = raw.shape
+    code = {np.dtype("<i2"): 0, np.dtype("<i4"): 1, np.dtype("<f4"): 2}[raw.dtype]
+    fields = [("<i", 0), ("<32H", *_utf16(name, 32)), ("<8H", *_utf16("Contact", 8)), ("<d", 0.0), ("<2i", 0, 0),
+              ("<2i", points, lines), ("<d", 0.0), ("<i", 0), ("<d", 0.0), ("<3i", int(forward), int(up), 0),
+              ("<6d", *size_um, 0.0, 0.0, rate_hz, 0.0), ("<8H", *_utf16("nN", 8)), ("<5d", 0.0, 0.0, gain, scale, offset),
+              ("<8H", *_utf16(unit, 8)), ("<6i", 0, 0, 0, 0, 0, 0), ("<2d", 0.0, 0.0), ("<24H", *[0] * 24),
+              ("<3i", code, 0, 0), ("<3d", 0.0, 0.0, 0.0), ("<16H", *_utf16("tip", 16)), ("<64x",)]
+    header = b"".join(struct.pack(f[0], *f[1:]) for f in fields)
+    data = np.ascontiguousarray(raw).tobytes()
+    tags = [(50432, 4, 1, 0x0E031301, True), (50433, 4, 1, 0x1000002, True), (50434, 1, len(data), data, True),
+            (50435, 1, len(header), header, True)]
+    tifffile.imwrite(path, np.zeros(raw.shape, np.uint8), extratags=tags)
+    return path
+
+
+def _jpk_slot(k: int, name: str, unit: str, multiply: float, offset: float) -> list:
+    base = 0x8090 + k * 0x30  # slot k's tag block (stride 0x30), as JPK's image spec and SurfaceTopography lay it out
+    return [(base, "s", 0, name, True), (base + 0x01, "s", 0, "scaled" if k else "raw", True),
+            (base + 0x02, "s", 0, "raw" if k else "none", True), (base + 0x10, "s", 0, name, True),
+            (base + 0x11, "s", 0, name, True), (base + 0x12, "s", 0, unit, True),
+            (base + 0x13, "s", 0, "LinearScaling", True), (base + 0x14, "d", 1, multiply, True),
+            (base + 0x15, "d", 1, offset, True)]
+
+
+def write_jpk(path, pages, *, size_m=(5e-6, 4e-6), rate_hz=1.0):
+    """A JPK image scan written with ``tifffile``: a thumbnail page with the scan's tags, then one page per
+    ``(fancy name, retrace, raw int32 (lines, pixels) first line scanned first, multiply, offset)``, its
+    ``nominal`` slot in m. Both ``SurfaceTopography``'s ``JPKReader`` and AFMReader's ``load_jpk`` read
+    this layout to the same heights (checked when the fixture was written)."""
+    lines, points = pages[0][2].shape
+    scan = [(0x8000, "s", 0, "1.0", True), (0x8003, "s", 0, "2024-01-01 10:00:00 UTC", True),
+            (0x8042, "d", 1, size_m[0], True), (0x8043, "d", 1, size_m[1], True), (0x8044, "d", 1, 0.0, True),
+            (0x8045, "H", 1, 0, True), (0x8046, "I", 1, points, True), (0x8047, "I", 1, lines, True),
+            (0x8049, "d", 1, rate_hz, True)]
+    with tifffile.TiffWriter(path) as tiff:
+        tiff.write(np.zeros((16, 16), np.uint8), extratags=scan)
+        for fancy, retrace, raw, multiply, offset in pages:
+            tags = [(0x8050, "s", 0, fancy.split()[0].lower(), True), (0x8051, "H", 1, int(retrace), True),
+                    (0x8052, "s", 0, fancy, True), (0x8080, "I", 1, 2, True), (0x8081, "s", 0, "nominal", True)]
+            tiff.write(np.asarray(raw, np.int32), extratags=tags + _jpk_slot(0, "raw", "V", 1.0, 0.0)
+                       + _jpk_slot(1, "nominal", "m", multiply, offset))
+    return path
