@@ -228,13 +228,16 @@ def test_large_images_are_cut_to_the_budget_first_lines_and_pixel_block_means():
     from afmsim.diagnosis.images.record import within_budget
 
     rng = np.random.default_rng(2)
-    trace, retrace = rng.normal(size=(300, 520)), rng.normal(size=(300, 520))
+    trace, retrace = rng.normal(size=(300, 1040)), rng.normal(size=(300, 1040))
     rec = load_images({"trace": trace, "retrace": retrace, "scan_size_m": (5.2e-6, 3e-6), "line_rate_hz": 1.0})
     cut, done = within_budget(rec)
-    assert cut.shape == (256, 173) and done["pixels_per_bin"] == 3 and done["pixels_used"] == 519
-    np.testing.assert_allclose(cut.trace, trace[:256, :519].reshape(256, 173, 3).mean(axis=2))
+    assert cut.shape == (256, 346) and done["pixels_per_bin"] == 3 and done["pixels_used"] == 1038
+    np.testing.assert_allclose(cut.trace, trace[:256, :1038].reshape(256, 346, 3).mean(axis=2))
     np.testing.assert_allclose(cut.retrace[:, 0], retrace[:256, :3].mean(axis=1))
-    assert cut.scan_size_m == pytest.approx((5.2e-6 * 519 / 520, 3e-6 * 256 / 300))
+    assert cut.scan_size_m == pytest.approx((5.2e-6 * 1038 / 1040, 3e-6 * 256 / 300))
+    lines_only, done = within_budget(load_images({"trace": trace[:, :512], "retrace": retrace[:, :512],
+                                                  "scan_size_m": (5.2e-6, 3e-6), "line_rate_hz": 1.0}))
+    assert lines_only.shape == (256, 512) and done["pixels_per_bin"] == 1  # 512 pixels: lines cut, pixels kept
     assert cut.line_rate_hz == rec.line_rate_hz  # the fast axis's speed is kept
     assert within_budget(load_images(_pair()))[1] is None
 
@@ -249,8 +252,9 @@ def test_diagnosis_of_a_large_image_is_the_diagnosis_of_its_cut(z_case, monkeypa
     report, summary = diagnose_images(rec)
     cut, done = within_budget(rec)
     assert report["images"]["cut"] == done and (report["images"]["lines"], report["images"]["pixels"]) == cut.shape
-    assert summary.startswith(f"Image cut to the diagnosis's {rec.shape[0] - 4} × {rec.shape[1] // 2} budget: "
+    assert summary.startswith(f"Image cut to the diagnosis's {rec.shape[0] - 4} lines × {rec.shape[1] // 2} pixels: "
                               f"the first {rec.shape[0] - 4} of {rec.shape[0]} lines; pixels averaged in blocks of 2")
+    assert "not proof that nothing is missing" in summary.splitlines()[0]
     monkeypatch.setattr(record_module, "MAX_LINES", 10**6)
     direct, _ = diagnose_images(cut)
     assert direct["baseline"]["rms_gap"] == pytest.approx(report["baseline"]["rms_gap"], rel=1e-9)
