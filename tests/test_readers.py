@@ -347,6 +347,7 @@ def test_park_forward_and_backward_files_diagnose_as_one_pair(tmp_path):
     assert listing["format"] == "park" and listing["channels"][0]["line_time_s"] == pytest.approx(0.5)
     alone = runner.invoke(app, ["diagnose", "--measured", str(fwd), "--out", str(tmp_path / "alone")])
     assert alone.exit_code == 2 and "forward scan only" in alone.output and alone.output.count("\n") == 1
+    assert "give the other file too (--retrace)" in alone.output
     assert not (tmp_path / "alone").exists()
     out = tmp_path / "pair"
     result = runner.invoke(app, ["diagnose", "--measured", str(fwd), "--retrace", str(bwd), "--out", str(out)])

@@ -47,9 +47,10 @@ def _pairs(channels) -> dict[str, dict[str, Channel]]:
     return out
 
 
-def _one_direction(name: str, pair: dict) -> str:
+def _one_direction(name: str, pair: dict, fmt: str) -> str:
     have = next(iter(pair.values())).direction
-    return f"'{name}' has the {have} scan only; the diagnosis needs both directions (trace and retrace)"
+    hint = "; Park writes one direction per file: give the other file too (--retrace)" if fmt == "park" else ""
+    return f"'{name}' has the {have} scan only; the diagnosis needs both directions (trace and retrace){hint}"
 
 
 def pick_height_pair(afm: AfmFile, channel: str | None = None) -> tuple[Channel, Channel, str]:
@@ -67,7 +68,7 @@ def pick_height_pair(afm: AfmFile, channel: str | None = None) -> tuple[Channel,
             raise ReaderError(f"{label}: no channel '{channel}' with a scan direction; channels: {names}")
         pair = pairs[match[0]]
         if len(pair) < 2:
-            raise ReaderError(f"{label}: {_one_direction(match[0], pair)}")
+            raise ReaderError(f"{label}: {_one_direction(match[0], pair, afm.format)}")
         if pair["trace"].unit != "m":
             raise ReaderError(f"{label}: channel '{match[0]}' is in '{pair['trace'].unit}', not a height in m")
         chosen, reason = match[0], "named by --channel"
@@ -77,7 +78,7 @@ def pick_height_pair(afm: AfmFile, channel: str | None = None) -> tuple[Channel,
         if not both:
             if heights:
                 name, pair = next(iter(heights.items()))
-                raise ReaderError(f"{label}: {_one_direction(name, pair)}")
+                raise ReaderError(f"{label}: {_one_direction(name, pair, afm.format)}")
             raise ReaderError(f"{label}: no height channel (a length in m with a scan direction) among {names}; "
                               "name one with --channel")
         chosen = min(both, key=lambda n: _rank(both[n]["trace"]))
