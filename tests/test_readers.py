@@ -334,6 +334,9 @@ def test_park_refusals_are_one_line(tmp_path):
     fwd = write_park(tmp_path / "fwd.tiff", np.zeros((8, 8), "<i2"))
     with pytest.raises(ReaderError, match="same file is given twice"):
         readers.read_afm_files(fwd, fwd)
+    other = write_park(tmp_path / "other_bwd.tiff", np.ones((8, 8), "<i2"), forward=False, size_um=(20.0, 5.0))
+    with pytest.raises(ReaderError, match=r"scan sizes differ: \['10', '5'\] vs \['20', '5'\] µm"):
+        pick_height_pair(readers.read_afm_files(fwd, other))
 
 
 def test_park_forward_and_backward_files_diagnose_as_one_pair(tmp_path):

@@ -88,6 +88,10 @@ def pick_height_pair(afm: AfmFile, channel: str | None = None) -> tuple[Channel,
     if trace.shape != retrace.shape:
         raise ReaderError(f"{label}: '{chosen}' {trace.direction} and {retrace.direction} shapes differ: "
                           f"{trace.shape} vs {retrace.shape}")
+    if not all(abs(a - b) <= 1e-6 * max(abs(a), abs(b)) for a, b in zip(trace.size_m, retrace.size_m)):
+        raise ReaderError(f"{label}: '{chosen}' {trace.direction} and {retrace.direction} scan sizes differ: "
+                          f"{[f'{v * 1e6:.4g}' for v in trace.size_m]} vs "
+                          f"{[f'{v * 1e6:.4g}' for v in retrace.size_m]} µm (not one scan's two directions)")
     others = [n for n in pairs if n != chosen and _rank(next(iter(pairs[n].values()))) is not None]
     also = f"; other height channels: {', '.join(others)}" if others else ""
     rotation = afm.metadata.get("scan_rotation_deg")
