@@ -71,8 +71,10 @@ def _write_ibw(path, layers, note):
     return path
 
 
-def _write_nanoscope(path, layers, *, size_um=5.0, rate_hz=1.0, frame="Up", zsens_nm_per_v=20.0, zscale_v=440.0):
-    """A minimal binary Nanoscope (v5) file: ``layers`` is [(name, "Trace"/"Retrace", int16 (lines, points))]."""
+def _write_nanoscope(path, layers, *, size_um=5.0, rate_hz=1.0, frame="Up", zsens_nm_per_v=20.0, zscale_v=440.0,
+                     bytes_per_pixel=2):
+    """A minimal binary Nanoscope (v5) file: ``layers`` is [(name, "Trace"/"Retrace", int16 or int32 (lines,
+    points))]; ``bytes_per_pixel`` 4 as newer Nanoscope versions store (the Z scale spans 2^32 LSB)."""
     lines, points = layers[0][2].shape
     offset = 8192
     head = ["\\*File list", "\\Version: 0x05120130", "\\Date: 10:00:00 AM Mon Jan 01 2024",
@@ -80,15 +82,15 @@ def _write_nanoscope(path, layers, *, size_um=5.0, rate_hz=1.0, frame="Up", zsen
             "\\*Ciao scan list", f"\\Scan Size: {size_um} {size_um} ~m", f"\\Samps/line: {points}",
             f"\\Lines: {lines}", f"\\Scan Rate: {rate_hz}", f"\\Frame direction: {frame}"]
     for k, (name, direction, _) in enumerate(layers):
-        lsb = zscale_v / 65536
-        head += ["\\*Ciao image list", f"\\Data offset: {offset + k * lines * points * 2}",
-                 f"\\Data length: {lines * points * 2}", "\\Bytes/pixel: 2", f"\\Samps/line: {points}",
+        lsb, size = zscale_v / 256**bytes_per_pixel, lines * points * bytes_per_pixel
+        head += ["\\*Ciao image list", f"\\Data offset: {offset + k * size}",
+                 f"\\Data length: {size}", f"\\Bytes/pixel: {bytes_per_pixel}", f"\\Samps/line: {points}",
                  f"\\Number of lines: {lines}", f"\\Scan Size: {size_um} {size_um} ~m", "\\Aspect Ratio: 1:1",
                  f"\\Line Direction: {direction}", f'\\@2:Image Data: S [{name}] "{name}"',
                  f"\\@2:Z scale: V [Sens. Zsens] ({lsb:.10f} V/LSB) {zscale_v:.4f} V",
                  f"\\@2:Z offset: V [Sens. Zsens] ({lsb:.10f} V/LSB) 0.0000 V"]
     header = ("\r\n".join(head + ["\\*File list end"]) + "\r\n").encode("latin-1")
-    data = b"".join(np.asarray(img, dtype="<i2").tobytes() for _, _, img in layers)
+    data = b"".join(np.asarray(img, dtype=f"<i{bytes_per_pixel}").tobytes() for _, _, img in layers)
     path.write_bytes(header + b"\x1a" * (offset - len(header)) + data)
     return path
 
@@ -365,6 +367,17 @@ def test_park_forward_and_backward_files_diagnose_as_one_pair(tmp_path):
     csv.write_text("t_s,v_V,x_m\n0,0,0\n")
     wrong = runner.invoke(app, ["diagnose", "--measured", str(csv), "--retrace", str(bwd), "--out", str(tmp_path / "w")])
     assert wrong.exit_code == 2 and "--retrace goes with an image file" in wrong.output
+
+
+def test_nanoscope_32_bit_layers(tmp_path):
+    rng = np.random.default_rng(5)
+    raw = rng.integers(-2**30, 2**30, (8, 12)).astype(np.int32)
+    path = _write_nanoscope(tmp_path / "scan.spm", [("Height Sensor", "Trace", raw), ("Height Sensor", "Retrace", -raw)],
+                            bytes_per_pixel=4)
+    t, r, _ = pick_height_pair(read_afm_file(path))
+    nm_per_lsb = 440.0 / 2**32 * 20.0
+    np.testing.assert_allclose(t.data, raw * nm_per_lsb * 1e-9)
+    np.testing.assert_allclose(r.data, -raw * nm_per_lsb * 1e-9)
 
 
 def test_npz_run_images_and_plain_pair(tmp_path):
