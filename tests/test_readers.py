@@ -1,9 +1,10 @@
 """Real instrument files in: every format's channels, directions, units, sizes and line times;
 the height pair; ``afmsim inspect``; ``diagnose --measured`` on vendor files; bad files → one line, exit 2.
 
-Fixture files are made in ``tmp_path``: ``.gwy`` with ``gwyfile``, ``.ibw`` with ``igorwriter``
-(both maintained writers); no maintained package writes Nanoscope files, so ``_write_nanoscope``
-builds a minimal binary one from the format's header layout. The real Nanosurf files come from
+Fixture files are made in ``tmp_path`` by ``vendor_files`` (beside this file): ``.gwy`` with
+``gwyfile``, ``.ibw`` with ``igorwriter``, Park ``.tiff`` and JPK ``.jpk`` with ``tifffile`` (maintained
+writers); no maintained package writes Nanoscope files, so ``write_nanoscope`` builds a minimal
+binary one from the format's header layout. The real Nanosurf files come from
 ``../shared/real-data/afm`` (tests skip without it).
 """
 
@@ -20,7 +21,7 @@ import afmsim.readers as readers
 from afmsim.readers import ReaderError, pick_height_pair, read_afm_file
 from afmsim.readers.channels import quantity_of, split_direction, to_si
 
-from vendor_files import write_jpk, write_park
+from vendor_files import write_gwy, write_ibw, write_jpk, write_nanoscope, write_park
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real-data" / "afm"
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="../shared/real-data/afm not present")
@@ -36,63 +37,6 @@ README = {
     "image.nid": ("Z-Axis", 7.40729e-6, 0.80325, 6),
     "test.nid": ("Z-Axis", 50e-6, 0.8, 8),
 }
-
-
-# --- fixture writers --------------------------------------------------------------------------
-
-def _write_gwy(path, fields, meta=None):
-    """``fields``: (title, z, z_unit, xy_real, xy_unit) each, written with gwyfile; ``meta`` on every channel."""
-    from gwyfile.objects import GwyContainer, GwyDataField, GwySIUnit
-
-    container = GwyContainer()
-    for i, (title, z, z_unit, real, xy_unit) in enumerate(fields):
-        container[f"/{i}/data"] = GwyDataField(np.ascontiguousarray(z, dtype=np.float64), xreal=real, yreal=real,
-                                               si_unit_xy=GwySIUnit(unitstr=xy_unit),
-                                               si_unit_z=GwySIUnit(unitstr=z_unit))
-        container[f"/{i}/data/title"] = title
-        if meta:
-            container[f"/{i}/meta"] = GwyContainer(meta)
-    container.tofile(str(path))
-    return path
-
-
-def _write_ibw(path, layers, note):
-    """``layers``: {label: (lines, points) image}; Asylum's layout (points, lines, channels), igorwriter."""
-    import igorwriter
-
-    stack = np.stack([img.T for img in layers.values()], axis=2).astype(np.float32)
-    wave = igorwriter.IgorWave(stack, name="scan0001")
-    wave.set_dimscale("x", 0, 1e-8, "m")
-    wave.set_dimscale("y", 0, 1e-8, "m")
-    for k, label in enumerate(layers):
-        wave.set_dimlabel(2, k, label)
-    wave.set_note("\r".join(f"{k}: {v}" for k, v in note.items()) + "\r")
-    wave.save(str(path))
-    return path
-
-
-def _write_nanoscope(path, layers, *, size_um=5.0, rate_hz=1.0, frame="Up", zsens_nm_per_v=20.0, zscale_v=440.0,
-                     bytes_per_pixel=2):
-    """A minimal binary Nanoscope (v5) file: ``layers`` is [(name, "Trace"/"Retrace", int16 or int32 (lines,
-    points))]; ``bytes_per_pixel`` 4 as newer Nanoscope versions store (the Z scale spans 2^32 LSB)."""
-    lines, points = layers[0][2].shape
-    offset = 8192
-    head = ["\\*File list", "\\Version: 0x05120130", "\\Date: 10:00:00 AM Mon Jan 01 2024",
-            "\\*Scanner list", f"\\@Sens. Zsens: V {zsens_nm_per_v} nm/V",
-            "\\*Ciao scan list", f"\\Scan Size: {size_um} {size_um} ~m", f"\\Samps/line: {points}",
-            f"\\Lines: {lines}", f"\\Scan Rate: {rate_hz}", f"\\Frame direction: {frame}"]
-    for k, (name, direction, _) in enumerate(layers):
-        lsb, size = zscale_v / 256**bytes_per_pixel, lines * points * bytes_per_pixel
-        head += ["\\*Ciao image list", f"\\Data offset: {offset + k * size}",
-                 f"\\Data length: {size}", f"\\Bytes/pixel: {bytes_per_pixel}", f"\\Samps/line: {points}",
-                 f"\\Number of lines: {lines}", f"\\Scan Size: {size_um} {size_um} ~m", "\\Aspect Ratio: 1:1",
-                 f"\\Line Direction: {direction}", f'\\@2:Image Data: S [{name}] "{name}"',
-                 f"\\@2:Z scale: V [Sens. Zsens] ({lsb:.10f} V/LSB) {zscale_v:.4f} V",
-                 f"\\@2:Z offset: V [Sens. Zsens] ({lsb:.10f} V/LSB) 0.0000 V"]
-    header = ("\r\n".join(head + ["\\*File list end"]) + "\r\n").encode("latin-1")
-    data = b"".join(np.asarray(img, dtype=f"<i{bytes_per_pixel}").tobytes() for _, _, img in layers)
-    path.write_bytes(header + b"\x1a" * (offset - len(header)) + data)
-    return path
 
 
 def _grating(lines=24, points=32, shift_px=1.5, seed=0):
@@ -223,7 +167,7 @@ def test_inspect_json_schema_on_a_real_file():
 
 def test_gwy_vendor_titles_units_and_directions(tmp_path):
     z = np.arange(20 * 24, dtype=float).reshape(20, 24)
-    path = _write_gwy(tmp_path / "scan.gwy", [("Z-Axis forward", z, "nm", 2.0, "µm"), ("Z-Axis backward", z + 1, "nm", 2.0, "µm"),
+    path = write_gwy(tmp_path / "scan.gwy", [("Z-Axis forward", z, "nm", 2.0, "µm"), ("Z-Axis backward", z + 1, "nm", 2.0, "µm"),
                                               ("Phase forward", z, "deg", 2.0, "µm")])
     afm = read_afm_file(path)
     assert afm.format == "gwy" and [c.direction for c in afm.channels] == ["forward", "backward", "forward"]
@@ -231,16 +175,16 @@ def test_gwy_vendor_titles_units_and_directions(tmp_path):
     assert trace.name == "Z-Axis" and trace.unit == "m" and trace.size_m == pytest.approx((2e-6, 2e-6))
     np.testing.assert_allclose(retrace.data, (z + 1) * 1e-9)
     assert afm.channels[2].quantity == "phase" and afm.channels[2].line_time_s is None
-    kept = _write_gwy(tmp_path / "kept.gwy", [("Height (Trace)", z, "m", 1e-6, "m")], meta={"Scan Rate": "2 Hz"})
+    kept = write_gwy(tmp_path / "kept.gwy", [("Height (Trace)", z, "m", 1e-6, "m")], meta={"Scan Rate": "2 Hz"})
     assert read_afm_file(kept).channels[0].line_time_s == pytest.approx(0.25)  # 1 / (2 · 2 Hz)
 
 
 def test_gwy_one_direction_or_no_height_is_refused(tmp_path):
     z = np.ones((16, 16)) * np.arange(16)
-    one = read_afm_file(_write_gwy(tmp_path / "one.gwy", [("Height Trace", z, "m", 1e-6, "m")]))
+    one = read_afm_file(write_gwy(tmp_path / "one.gwy", [("Height Trace", z, "m", 1e-6, "m")]))
     with pytest.raises(ReaderError, match="trace scan only"):
         pick_height_pair(one)
-    none = read_afm_file(_write_gwy(tmp_path / "amp.gwy", [("Amplitude forward", z, "V", 1e-6, "m"),
+    none = read_afm_file(write_gwy(tmp_path / "amp.gwy", [("Amplitude forward", z, "V", 1e-6, "m"),
                                                            ("Amplitude backward", z, "V", 1e-6, "m")]))
     with pytest.raises(ReaderError, match="no height channel"):
         pick_height_pair(none)
@@ -250,7 +194,7 @@ def test_ibw_asylum_layers_note_and_scan_down(tmp_path):
     trace, retrace = _grating()
     note = {"FastScanSize": 3.2e-7, "SlowScanSize": 2.4e-7, "ScanRate": 2.5, "ScanDown": 1, "ImagingMode": "AC Mode",
             "ScanAngle": 90}
-    path = _write_ibw(tmp_path / "asylum.ibw", {"HeightTrace": trace, "HeightRetrace": retrace,
+    path = write_ibw(tmp_path / "asylum.ibw", {"HeightTrace": trace, "HeightRetrace": retrace,
                                                 "ZSensorTrace": trace, "ZSensorRetrace": retrace,
                                                 "PhaseTrace": trace * 1e9}, note)
     afm = read_afm_file(path)
@@ -268,7 +212,7 @@ def test_nanoscope_scaling_directions_and_line_time(tmp_path):
     rng = np.random.default_rng(1)
     raw_t = rng.integers(-20000, 20000, (16, 20)).astype(np.int16)
     raw_r = rng.integers(-20000, 20000, (16, 20)).astype(np.int16)
-    path = _write_nanoscope(tmp_path / "scan.001", [("Height", "Trace", raw_t), ("Height", "Retrace", raw_r),
+    path = write_nanoscope(tmp_path / "scan.001", [("Height", "Trace", raw_t), ("Height", "Retrace", raw_r),
                                                     ("Amplitude", "Trace", raw_t)], rate_hz=2.0, frame="Down")
     afm = read_afm_file(path)
     assert afm.format == "nanoscope" and [c.direction for c in afm.channels] == ["trace", "retrace", "trace"]
@@ -372,7 +316,7 @@ def test_park_forward_and_backward_files_diagnose_as_one_pair(tmp_path):
 def test_nanoscope_32_bit_layers(tmp_path):
     rng = np.random.default_rng(5)
     raw = rng.integers(-2**30, 2**30, (8, 12)).astype(np.int32)
-    path = _write_nanoscope(tmp_path / "scan.spm", [("Height Sensor", "Trace", raw), ("Height Sensor", "Retrace", -raw)],
+    path = write_nanoscope(tmp_path / "scan.spm", [("Height Sensor", "Trace", raw), ("Height Sensor", "Retrace", -raw)],
                             bytes_per_pixel=4)
     t, r, _ = pick_height_pair(read_afm_file(path))
     nm_per_lsb = 440.0 / 2**32 * 20.0
@@ -433,9 +377,9 @@ def _bad_files(tmp_path):
     files = {"empty.nid": b"", "picture.nid": png, "noise.nid": random, "noise.ibw": random, "noise.spm": random,
              "noise.gwy": random, "noise.tiff": random, "noise.jpk": random, "noise.003": b"\\*File list\r\n\\Version: 0x05120130\r\n", "table.xyz": b"1 2 3"}
     trace, retrace = _grating()
-    made = [_write_gwy(tmp_path / "made.gwy", [("Z forward", trace, "m", 1e-6, "m"), ("Z backward", retrace, "m", 1e-6, "m")]),
-            _write_ibw(tmp_path / "made.ibw", {"HeightTrace": trace, "HeightRetrace": retrace}, {"ScanRate": 1}),
-            _write_nanoscope(tmp_path / "made.spm", [("Height", "Trace", np.zeros((16, 16), np.int16))]),
+    made = [write_gwy(tmp_path / "made.gwy", [("Z forward", trace, "m", 1e-6, "m"), ("Z backward", retrace, "m", 1e-6, "m")]),
+            write_ibw(tmp_path / "made.ibw", {"HeightTrace": trace, "HeightRetrace": retrace}, {"ScanRate": 1}),
+            write_nanoscope(tmp_path / "made.spm", [("Height", "Trace", np.zeros((16, 16), np.int16))]),
             write_park(tmp_path / "made.tiff", np.zeros((16, 16), "<i2")),
             write_jpk(tmp_path / "made.jpk", [("Height", False, np.zeros((16, 16)), 1e-9, 0.0)])]
     for path in made:  # cut in half: gwyfile would loop forever, igor2 logs, pySPM reads past the end
@@ -470,15 +414,15 @@ def _made(fmt, path, trace, retrace):
     """The same trace/retrace pair (m) written as a Nanoscope, Asylum, JPK or Gwyddion file, line time 0.5 s."""
     if fmt == "spm":
         to_raw = lambda h: np.round(h / (440.0 / 65536 * 20.0 * 1e-9)).astype(np.int16)  # noqa: E731
-        return _write_nanoscope(path, [("Height", "Trace", to_raw(trace)), ("Height", "Retrace", to_raw(retrace))],
+        return write_nanoscope(path, [("Height", "Trace", to_raw(trace)), ("Height", "Retrace", to_raw(retrace))],
                                 size_um=3.2, rate_hz=1.0)
     if fmt == "ibw":
-        return _write_ibw(path, {"HeightTrace": trace, "HeightRetrace": retrace},
+        return write_ibw(path, {"HeightTrace": trace, "HeightRetrace": retrace},
                           {"FastScanSize": 3.2e-6, "SlowScanSize": 2.0e-6, "ScanRate": 1.0})
     if fmt == "jpk":
         return write_jpk(path, [("Height", False, np.round(trace / 1e-12), 1e-12, 0.0),
                                  ("Height", True, np.round(retrace / 1e-12), 1e-12, 0.0)], size_m=(3.2e-6, 2e-6))
-    return _write_gwy(path, [("Z-Axis forward", trace, "m", 3.2e-6, "m"), ("Z-Axis backward", retrace, "m", 3.2e-6, "m")],
+    return write_gwy(path, [("Z-Axis forward", trace, "m", 3.2e-6, "m"), ("Z-Axis backward", retrace, "m", 3.2e-6, "m")],
                       meta={"Time/Line": "500ms"})
 
 

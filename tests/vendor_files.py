@@ -1,6 +1,7 @@
-"""Vendor AFM files written for the tests with maintained writers (``tifffile``): Park Systems TIFF
-and JPK image scans, whose layouts the readers' documentation (``pspylib``, ``SurfaceTopography``,
-AFMReader) describes."""
+"""Vendor AFM files written for the tests: Gwyddion ``.gwy`` (``gwyfile``), Asylum ``.ibw``
+(``igorwriter``), Park Systems TIFF and JPK image scans (``tifffile``, the private tags laid out as
+the readers' documentation — ``pspylib``, ``SurfaceTopography``, AFMReader — describes them), and a
+minimal binary Nanoscope file built from the format's header layout (no maintained writer exists)."""
 
 import struct
 
@@ -60,4 +61,59 @@ def write_jpk(path, pages, *, size_m=(5e-6, 4e-6), rate_hz=1.0):
                     (0x8052, "s", 0, fancy, True), (0x8080, "I", 1, 2, True), (0x8081, "s", 0, "nominal", True)]
             tiff.write(np.asarray(raw, np.int32), extratags=tags + _jpk_slot(0, "raw", "V", 1.0, 0.0)
                        + _jpk_slot(1, "nominal", "m", multiply, offset))
+    return path
+
+
+def write_gwy(path, fields, meta=None):
+    """``fields``: (title, z, z_unit, xy_real, xy_unit) each, written with gwyfile; ``meta`` on every channel."""
+    from gwyfile.objects import GwyContainer, GwyDataField, GwySIUnit
+
+    container = GwyContainer()
+    for i, (title, z, z_unit, real, xy_unit) in enumerate(fields):
+        container[f"/{i}/data"] = GwyDataField(np.ascontiguousarray(z, dtype=np.float64), xreal=real, yreal=real,
+                                               si_unit_xy=GwySIUnit(unitstr=xy_unit),
+                                               si_unit_z=GwySIUnit(unitstr=z_unit))
+        container[f"/{i}/data/title"] = title
+        if meta:
+            container[f"/{i}/meta"] = GwyContainer(meta)
+    container.tofile(str(path))
+    return path
+
+
+def write_ibw(path, layers, note):
+    """``layers``: {label: (lines, points) image}; Asylum's layout (points, lines, channels), igorwriter."""
+    import igorwriter
+
+    stack = np.stack([img.T for img in layers.values()], axis=2).astype(np.float32)
+    wave = igorwriter.IgorWave(stack, name="scan0001")
+    wave.set_dimscale("x", 0, 1e-8, "m")
+    wave.set_dimscale("y", 0, 1e-8, "m")
+    for k, label in enumerate(layers):
+        wave.set_dimlabel(2, k, label)
+    wave.set_note("\r".join(f"{k}: {v}" for k, v in note.items()) + "\r")
+    wave.save(str(path))
+    return path
+
+
+def write_nanoscope(path, layers, *, size_um=5.0, rate_hz=1.0, frame="Up", zsens_nm_per_v=20.0, zscale_v=440.0,
+                     bytes_per_pixel=2):
+    """A minimal binary Nanoscope (v5) file: ``layers`` is [(name, "Trace"/"Retrace", int16 or int32 (lines,
+    points))]; ``bytes_per_pixel`` 4 as newer Nanoscope versions store (the Z scale spans 2^32 LSB)."""
+    lines, points = layers[0][2].shape
+    offset = 8192
+    head = ["\\*File list", "\\Version: 0x05120130", "\\Date: 10:00:00 AM Mon Jan 01 2024",
+            "\\*Scanner list", f"\\@Sens. Zsens: V {zsens_nm_per_v} nm/V",
+            "\\*Ciao scan list", f"\\Scan Size: {size_um} {size_um} ~m", f"\\Samps/line: {points}",
+            f"\\Lines: {lines}", f"\\Scan Rate: {rate_hz}", f"\\Frame direction: {frame}"]
+    for k, (name, direction, _) in enumerate(layers):
+        lsb, size = zscale_v / 256**bytes_per_pixel, lines * points * bytes_per_pixel
+        head += ["\\*Ciao image list", f"\\Data offset: {offset + k * size}",
+                 f"\\Data length: {size}", f"\\Bytes/pixel: {bytes_per_pixel}", f"\\Samps/line: {points}",
+                 f"\\Number of lines: {lines}", f"\\Scan Size: {size_um} {size_um} ~m", "\\Aspect Ratio: 1:1",
+                 f"\\Line Direction: {direction}", f'\\@2:Image Data: S [{name}] "{name}"',
+                 f"\\@2:Z scale: V [Sens. Zsens] ({lsb:.10f} V/LSB) {zscale_v:.4f} V",
+                 f"\\@2:Z offset: V [Sens. Zsens] ({lsb:.10f} V/LSB) 0.0000 V"]
+    header = ("\r\n".join(head + ["\\*File list end"]) + "\r\n").encode("latin-1")
+    data = b"".join(np.asarray(img, dtype=f"<i{bytes_per_pixel}").tobytes() for _, _, img in layers)
+    path.write_bytes(header + b"\x1a" * (offset - len(header)) + data)
     return path
