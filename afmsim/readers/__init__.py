@@ -7,9 +7,10 @@
 Formats and the maintained package that reads each: Nanosurf ``.nid`` (``nsfopen``), Gwyddion
 ``.gwy`` (``gwyfile``), Asylum/Igor ``.ibw`` (``igor2``), Bruker/Veeco Nanoscope ``.spm`` and
 ``.000``–``.999`` (``pySPM``), Park Systems ``.tiff``/``.tif`` and JPK ``.jpk``
-(``SurfaceTopography``), afmsim's own ``.npz`` (numpy). Each module documents how it finds line order, direction, units and line time in
-its format (:mod:`.channels` states the common conventions). A Park file holds one scan direction:
-:func:`read_afm_files` reads a forward file and a backward file as one.
+(``SurfaceTopography``), afmsim's own ``.npz`` (numpy). Each module documents how it finds line
+order, direction, units and line time in its format (:mod:`.channels` states the common
+conventions). A Park file holds one scan direction: :func:`read_afm_files` reads a forward file and
+a backward file as one.
 Every problem raises :class:`ReaderError` with one line naming the file.
 """
 
@@ -28,8 +29,8 @@ from .npz import read_npz
 from .park import read_park
 from .pick import pick_height_pair
 
-__all__ = ["read_afm_file", "read_afm_files", "pick_height_pair", "AfmFile", "Channel", "ReaderError", "reader_for", "FORMATS",
-           "channel_listing", "format_listing"]
+__all__ = ["read_afm_file", "read_afm_files", "pick_height_pair", "AfmFile", "Channel", "ReaderError", "reader_for",
+           "FORMATS", "channel_listing", "format_listing"]
 
 FORMATS = ".nid, .gwy, .ibw, .spm, .000–.999, .tiff/.tif (Park), .jpk, .npz"
 _READERS = {".nid": read_nid, ".gwy": read_gwy_file, ".ibw": read_ibw, ".npz": read_npz, ".tiff": read_park,

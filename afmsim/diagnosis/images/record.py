@@ -277,12 +277,9 @@ def load_images(source, *, channel: str | None = None, line_rate_hz: float | Non
         if reader_for(path) is None:
             raise ValueError(f"image file must be .npz or .gwy (images) or an instrument file ({FORMATS}), "
                              f"got {path.name}")
-        others = [] if retrace is None else [Path(retrace)]
-        for other in others:
-            if reader_for(other) is None:
-                raise ValueError(f"retrace file must be an instrument file ({FORMATS}), got {other.name}")
-        cols, picked, channel_label = _columns(read_afm_files(path, *others), channel, line_rate_hz)
-        label = str(path) + "".join(f" + {other.name}" for other in others)
+        files = (path,) if retrace is None else (path, Path(retrace))  # an unknown suffix: the reader's one line
+        cols, picked, channel_label = _columns(read_afm_files(*files), channel, line_rate_hz)
+        label = " + ".join([str(path), *(f.name for f in files[1:])])
         return _validate(cols, label + (f" [{channel_label}]" if channel_label else ""), picked)
     if isinstance(source, dict):
         missing = [k for k in REQUIRED if k not in source and not (k == "line_rate_hz" and line_rate_hz)]
