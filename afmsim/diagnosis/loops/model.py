@@ -230,17 +230,19 @@ def relay_curvature(n_levels: int) -> np.ndarray:
     return out
 
 
+def block_means(a: np.ndarray, block: int) -> np.ndarray:
+    """Means of ``a``'s rows over consecutive blocks of ``block`` samples (a trailing part block dropped)."""
+    m = a.shape[0] // block
+    return a[: m * block].reshape(m, block, -1).mean(axis=1)
+
+
 def play_features(v, v_lo, v_hi, n_play=N_PLAY, block: int = 1) -> np.ndarray:
     """Play operators (half-widths k/n · range/2) on the centred normalised voltage; with ``block``
     > 1, their means over consecutive blocks of that many samples (as :func:`relay_features`)."""
-    from afmsim.hysteresis import play
-
     c = 0.5 * (v_lo + v_hi)
     u = (np.asarray(v, dtype=np.float64) - c) / (v_hi - v_lo)
     widths = np.arange(1, n_play + 1) / n_play * 0.5
-    out = play(u, widths, h0=u[0])
-    m = u.size // block
-    return out[: m * block].reshape(m, block, -1).mean(axis=1)
+    return block_means(play(u, widths, h0=u[0]), block)
 
 
 def fine_play_features(v, v_lo, v_hi, n_play: int = N_FINE_PLAY, block: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -252,14 +254,11 @@ def fine_play_features(v, v_lo, v_hi, n_play: int = N_FINE_PLAY, block: int = 1)
     (u₀ + r): the state at the record's start is unknown, and a wide operator keeps it until the
     drive sweeps past it (a noise drive's running maximum climbs through the whole training part).
     With ``block`` > 1, block means as :func:`relay_features`."""
-    from afmsim.hysteresis import play
-
     u = np.clip((np.asarray(v, dtype=np.float64) - v_lo) / (v_hi - v_lo), 0.0, 1.0)
     r = np.arange(1, n_play + 1) / n_play
     plays = np.hstack([play(u, r, h0=u[0] + side * r) for side in (-1.0, 0.0, 1.0)])
     poly = np.column_stack([u**2, u**3])
-    m = u.size // block
-    return tuple(a[: m * block].reshape(m, block, -1).mean(axis=1) for a in (poly, plays))
+    return block_means(poly, block), block_means(plays, block)
 
 
 def lag_filter(tau: float, dt: float):
@@ -660,8 +659,8 @@ class Design:
         spacing divided by :data:`PLAY_REFINE` per round are added (in the active play's starting
         state), and refined plays whose weight is below :data:`PLAY_KEEP_SHARE` of the total are
         dropped (the grid's plays always stay); a last fit prunes the same way. A sharp operator
-        between two grid half-widths so gets a column within 1/:data:`PLAY_REFINE`² of the grid
-        spacing of its own threshold. Only the training part is looked at; every column stays a
+        between two grid half-widths so gets a column within 1/:data:`PLAY_REFINE` ^ rounds of the
+        grid spacing of its own threshold. Only the training part is looked at; every column stays a
         play operator (rate-independent)."""
         n = N_FINE_PLAY
         grid = plays.shape[1]
@@ -671,7 +670,6 @@ class Design:
         free = np.hstack([self.free, self.nuisance, poly])
         half = PLAY_REFINE // 2
         steps = np.r_[-np.arange(half, 0, -1), np.arange(1, half + 1)] / n
-        m = plays.shape[0]
 
         def fit_and_prune(plays, radius, side):
             _, w = solve_weights(free, self.polarity * plays, self.x, self.train)
@@ -686,8 +684,7 @@ class Design:
                 near = (radius[active & (side == s)][:, None] + steps / PLAY_REFINE**round_).ravel()
                 r = np.setdiff1d(np.round(near[(near > 0.0) & (near <= 1.0)], 12), np.round(radius[side == s], 12))
                 if r.size:
-                    cols = play(u, r, h0=u[0] + s * r)
-                    added.append((r, s, cols[: m * self.block].reshape(m, self.block, -1).mean(axis=1)))
+                    added.append((r, s, block_means(play(u, r, h0=u[0] + s * r), self.block)))
             if not added:
                 break
             plays = np.hstack([plays] + [cols for _, _, cols in added])
