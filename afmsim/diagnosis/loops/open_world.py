@@ -114,8 +114,9 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: 27001–27003); 29001–29003 first for the split moved on to held-out states the training part
 #: determines (prompted and measured on spent records of 28001–28003); 30001–30003 first for the play
 #: family's refined thresholds (1caaf3b; prompted by classical-PI probe records outside the suite,
-#: measured on spent records of 29001–29003).
-FRESH_SEEDS = (30001, 30002, 30003)
+#: measured on spent records of 29001–29003); 31001–31003 first for the creep bank reaching 10
+#: training spans (d1a2311; prompted and measured on spent records of 30001–30003).
+FRESH_SEEDS = (31001, 31002, 31003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
