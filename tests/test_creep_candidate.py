@@ -11,15 +11,16 @@ from afmsim.diagnosis.loops.validation import excitation
 from afmsim.stage import AsymmetricPreisach
 
 
-def _stage_record(seed: int, duration: float = 24.0, fs: float = 250.0):
-    """afmsim's own stage under triangles, 3 nm sensor noise; the first 60 % is the training part."""
+def _stage_record(seed: int):
+    """afmsim's own stage under triangles for 24 s at 250 Hz, 3 nm sensor noise; the first 60 % is
+    the training part."""
     rng = np.random.default_rng(seed)
-    t, v = excitation("triangles", fs, duration, rng)
+    t, v = excitation("triangles", 250.0, 24.0, rng)
     x = AsymmetricPreisach().apply(v) + 3e-9 * rng.standard_normal(t.size)
-    return t, v, x, np.arange(t.size) < int(0.6 * t.size), rng
+    return t, v, x, np.arange(t.size) < int(0.6 * t.size)
 
 
-def _heldout_gap(d: Design, effects=()) -> float:
+def _heldout_gap(d: Design, effects: tuple) -> float:
     held, _ = d.scored()
     fitted = fit_model(d, ModelSpec(kind=d.family, effects=effects))
     return float(np.sqrt(np.mean((d.x - fitted.prediction)[held] ** 2)))
@@ -36,7 +37,7 @@ def test_a_creep_still_rising_at_the_records_end_is_followed_by_the_slower_bank(
     """A stretched-exponential creep (τ 15 s, β 0.45, 2 %/decade) on a 24 s record: a bank that stops
     at the 14 s training span settles while the stage still creeps; the bank to 10 spans leaves a
     held-out gap at least a third smaller."""
-    t, v, x, train, _ = _stage_record(4)
+    t, v, x, train = _stage_record(4)
     h = AsymmetricPreisach().apply(v)
 
     class FixedShape:  # creep_term draws (τ, β) from its generator: pin them
