@@ -458,7 +458,9 @@ def ratio_text(x) -> str:
 
 #: What the remainder's training-part fit says (``unexplained.reading``), with the model's training
 #: RMS gap to the noise: a model that misses its own training part lacks capacity or a term that acts
-#: throughout; one that fits it but not the held-out part meets states or changes it never saw.
+#: throughout; one that fits it but not the held-out part meets states or changes it never saw — and
+#: where a front measures how far its admissible priors part on the held-out part (the loop front's
+#: ``prior_dependent``), states whose prediction the prior, not the data, sets.
 READINGS = {
     "misfit_throughout": "Reading: the model misses its own training part too ({train} the noise floor): its "
                          "baseline family or capacity falls short for this instrument, or something outside the "
@@ -466,6 +468,10 @@ READINGS = {
     "heldout_only": "Reading: the model fits its training part ({train} the noise floor) but not the held-out part: "
                     "the held-out part reaches states the training part did not determine, or something changes "
                     "during the record (a drift, a gain change, a slip).",
+    "prior_dependent": "Reading: the model fits its training part ({train} the noise floor), but on the held-out "
+                       "part the baseline's admissible priors predict {spread} the noise apart (RMS), no less than "
+                       "the gap above the noise: the training part leaves that much to the prior, so the gap tests "
+                       "the prior, not the data — it neither shows a missing effect nor rules one out.",
 }
 
 
@@ -494,5 +500,6 @@ def verdict_text(rep: dict, where_text) -> str:
         lines.append(f"Verdict [unexplained]: {why} explains the gap: {left}. "
                      f"Where — {where_text(un['where'])}")
     if un.get("reading") in READINGS:
-        lines.append(READINGS[un["reading"]].format(train=ratio_text(un["train_gap_to_noise"])))
+        lines.append(READINGS[un["reading"]].format(train=ratio_text(un["train_gap_to_noise"]),
+                                                    spread=ratio_text(un.get("prior_spread_to_noise"))))
     return "\n".join(lines)
