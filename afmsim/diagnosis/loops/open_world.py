@@ -115,8 +115,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: determines (prompted and measured on spent records of 28001–28003); 30001–30003 first for the play
 #: family's refined thresholds (1caaf3b; prompted by classical-PI probe records outside the suite,
 #: measured on spent records of 29001–29003); 31001–31003 first for the creep bank reaching 10
-#: training spans (d1a2311; prompted and measured on spent records of 30001–30003).
-FRESH_SEEDS = (31001, 31002, 31003)
+#: training spans (d1a2311; prompted and measured on spent records of 30001–30003); 32001–32003 first
+#: for the prior_dependent reading of the remainder (5908a0a: reporting only, every verdict as
+#: before; prompted and measured on spent records of 31001–31003).
+FRESH_SEEDS = (32001, 32002, 32003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
@@ -399,6 +401,7 @@ def run_case(seed: int, index: int) -> dict:
         "final_gap_to_noise": rep["unexplained"]["gap_to_noise"],
         "final_train_gap_to_noise": rep["unexplained"].get("train_gap_to_noise"),
         "reading": rep["unexplained"].get("reading"),
+        "prior_spread_to_noise": rep["baseline"]["prior_spread_to_noise"],
         "reference_gap_to_noise": ref["baseline"]["gap_to_noise"],
         "implausible": [f["effect"] for f in rep["implausible"]],
         # oracle: the injected term raises the baseline's held-out mean square by ≥ σ²
@@ -486,6 +489,10 @@ def score_cases(results: list[dict]) -> dict:
         "null_readings": {plant: {reading: sum(r.get("reading") == reading for r in nulls if r["plant"] == plant)
                                   for reading in READINGS}
                           for plant in dict.fromkeys(r["plant"] for r in nulls)},
+        # the same readings of the remainder on effect and distractor records (prior_dependent: the gap left
+        # is no larger than what the training part leaves to the grid's prior)
+        "remainder_readings": {cat: {reading: sum(r.get("reading") == reading for r in group) for reading in READINGS}
+                               for cat, group in (("effect", eff), ("distractor", dis))},
         "detection_vs_magnitude": detection,
         "distractors": distractors,
     }
