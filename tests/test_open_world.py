@@ -139,7 +139,7 @@ def test_proportion_gives_the_wilson_interval():
 
 
 def _result(category, verdict, status, *, effects=(), level=None, plant="bouc_wen", gap=1.0, visible=True,
-            distractor=None):
+            distractor=None, reading=None):
     r = {"category": category, "effects": list(effects), "verdict": list(verdict), "findings": list(verdict),
          "status": status, "plant": plant, "gap_to_noise": gap, "visible": visible,
          "levels": {e: level for e in effects}, "scales": {e: "datasheet" for e in effects}}
@@ -148,6 +148,8 @@ def _result(category, verdict, status, *, effects=(), level=None, plant="bouc_we
                  detected={e: e in verdict for e in effects})
     if distractor:
         r["distractor"] = distractor
+    if reading:
+        r["reading"] = reading
     return r
 
 
@@ -155,12 +157,13 @@ def test_scores_of_a_hand_made_list():
     results = [
         _result("effect", ["drift"], "explained", effects=["drift"], level="3 nm/min"),
         _result("effect", [], "nothing_missing", effects=["drift"], level="3 nm/min", visible=False),
-        _result("effect", ["creep", "drift"], "partly_explained", effects=["drift"], level="40 nm/min"),
+        _result("effect", ["creep", "drift"], "partly_explained", effects=["drift"], level="40 nm/min",
+                reading="prior_dependent"),
         _result("effect", ["cross_coupling", "drift"], "explained", effects=["drift", "cross_coupling"]),
         _result("null", [], "nothing_missing", plant="bouc_wen", gap=1.5),
         _result("null", ["drift"], "explained", plant="bouc_wen", gap=3.0),
-        _result("null", [], "unexplained", plant="afmsim_preisach", gap=4.0),
-        _result("distractor", [], "unexplained", distractor="slip", gap=9.0),
+        _result("null", [], "unexplained", plant="afmsim_preisach", gap=4.0, reading="prior_dependent"),
+        _result("distractor", [], "unexplained", distractor="slip", gap=9.0, reading="heldout_only"),
         _result("distractor", ["creep"], "partly_explained", distractor="slip", gap=9.0),
         _result("distractor", [], "nothing_missing", distractor="mains", gap=1.0),
         {"category": "null", "error": "too short"},
@@ -180,6 +183,9 @@ def test_scores_of_a_hand_made_list():
     assert s["null_gap_to_noise"]["bouc_wen"]["within_2x"]["k"] == 1
     assert (s["nulls_within_2x"]["k"], s["nulls_within_2x"]["n"]) == (1, 3)
     assert s["status_counts"]["null"] == {"nothing_missing": 1, "explained": 1, "partly_explained": 0, "unexplained": 1}
+    assert s["null_readings"]["afmsim_preisach"]["prior_dependent"] == 1
+    assert s["remainder_readings"]["effect"] == {"misfit_throughout": 0, "heldout_only": 0, "prior_dependent": 1}
+    assert s["remainder_readings"]["distractor"] == {"misfit_throughout": 0, "heldout_only": 1, "prior_dependent": 0}
     table = s["detection_vs_magnitude"]["drift"]
     assert list(table) == ["3 nm/min", "40 nm/min"]  # in the order of the levels; the pair is not a row
     assert (table["3 nm/min"]["detected"]["k"], table["3 nm/min"]["detected"]["n"]) == (1, 2)
