@@ -223,7 +223,10 @@ def _read_prior_dependence(unexplained: dict, spread_to_noise: float | None, fam
     records read so: the three noise-drive records scored in untrained states at every split (6.8×,
     8.8×, 9.9×; spreads 11.8×, 18.3×, 12.8×) and the two generalised-PI ones (2.1×, 2.2×; spreads
     1.8×, 14×). A large spread alone says nothing: two grid records within 2× have spreads of 2.4× and
-    8.2× (their prior, chosen by GCV, extrapolated well; docs/diagnosis.md)."""
+    8.2× (their prior, chosen by GCV, extrapolated well). On fresh seeds 32001–32003 it read 2 of the
+    6 nulls above 2×; two others, scored in untrained states at 109× and 123×, have spreads of 9× and
+    7× only: both priors share the curvature prior's linear null space and extrapolate alike there,
+    so the spread bounds what the training part leaves open from below (docs/diagnosis.md)."""
     if unexplained.get("reading") != "heldout_only" or spread_to_noise is None or family != "preisach":
         return
     if spread_to_noise**2 >= unexplained["gap_to_noise"] ** 2 - 1.0:

@@ -615,7 +615,9 @@ class Design:
         relay states are combinations that no training sample determined (a reversal inside a
         cell no training reversal split), the two priors extrapolate the density differently and
         their predictions part. A held-out gap no larger than this spread tests the prior, not a
-        missing effect. The displacement held out is never looked at."""
+        missing effect. A lower bound: where both priors extrapolate alike (a density linear along
+        the grid's lines costs neither anything) they can agree and both miss. The displacement held
+        out is never looked at."""
         fits = self.grid_prior_fits
         return np.abs(fits[SMOOTHING_CHOICES[0]][0] - fits[SMOOTHING_CHOICES[-1]][0])
 
