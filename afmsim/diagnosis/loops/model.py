@@ -597,14 +597,13 @@ class Design:
         whose fit on the whole training part (:attr:`grid_prior_fits`) has the smallest generalised
         cross-validation score ``GCV = m·RSS / (m − df)²`` (:func:`gcv`; ties to the stiffer prior);
         the held-out part is never looked at. ``choice_scores["gcv_preisach@<w>"]``: √GCV (m) per
-        weight; the chosen fit's RSS and df are kept for :meth:`choose_family`."""
+        weight; :meth:`choose_family` scores the grid by the chosen fit."""
         best = None
         for smoothing, (_, rss, df) in self.grid_prior_fits.items():
             score = gcv(rss, df, int(self.train.sum()))
             self.choice_scores[f"gcv_preisach@{smoothing:g}"] = float(np.sqrt(score))
             if best is None or score < best[0]:
-                best = (score, smoothing, rss, df)
-        self._grid_fit = best[2:]
+                best = (score, smoothing)
         return best[1]
 
     def prior_spread(self) -> np.ndarray:
@@ -651,7 +650,7 @@ class Design:
         m = int(self.train.sum())
         nuisance = self.nuisance
         free = np.hstack([self.free, nuisance])
-        scores = {"preisach": self._grid_fit}
+        scores = {"preisach": self.grid_prior_fits[self.smoothing][1:]}
         u = self.normalised_voltage()
         shape, _ = fit_bouc_wen_shape(u, self.block, self.free, self.x, self.train, extra=nuisance)
         cols = np.hstack([free, bouc_wen_columns(u, shape, self.block, self.free)])
