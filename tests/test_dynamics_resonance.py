@@ -1,8 +1,8 @@
 """The loop ``dynamics`` candidate's resonance: a stage's first mode, which rings after every step.
 
 Records are made by other code than the candidate (continuous transfer functions discretised with
-the bilinear transform by :func:`scipy.signal.bilinear`; the candidate uses a zero-order hold and
-an ARX estimate), on afmsim's own Preisach stage.
+the bilinear transform by :func:`scipy.signal.bilinear`; the candidate uses a first-order hold,
+an ARX estimate and a Nelder–Mead refinement), on afmsim's own Preisach stage.
 """
 
 import numpy as np
@@ -40,15 +40,15 @@ def _steps(rng, duration=0.8, hold_s=0.04, ramp_s=0.5e-3):
     return t, v
 
 
-def _record(seed, f0=None, zeta=0.02, pole_hz=None, kind="steps"):
-    """Fast steps (or ``kind="triangles"``) on afmsim's stage, through an amplifier pole and/or a resonance,
-    with 10 nm sensor noise."""
+def _record(seed, f0=None, zeta=0.02, pole_hz=None, kind="steps", triangle_hz=5.0):
+    """Fast steps (or ``kind="triangles"``, at ``triangle_hz``) on afmsim's stage, through an
+    amplifier pole and/or a resonance, with 10 nm sensor noise."""
     rng = np.random.default_rng(seed)
     if kind == "steps":
         t, v = _steps(rng)
-    else:  # 5 Hz triangles between 0.5 and 9.5 V
+    else:  # triangles between 0.5 and 9.5 V
         t = np.arange(int(0.8 * FS)) / FS
-        v = 5.0 - 4.5 * sawtooth(2 * np.pi * 5.0 * t + np.pi, 0.5)
+        v = 5.0 - 4.5 * sawtooth(2 * np.pi * triangle_hz * t + np.pi, 0.5)
     axis = _plant()
     x = axis.static_displacement(axis.drive(t, v))
     if pole_hz is not None:
@@ -88,3 +88,18 @@ def test_a_lag_without_a_mode_gets_no_resonance():
     params = {e["name"]: e for e in rep["effects"]}["dynamics"]["params"]
     assert "resonance_hz" not in params
     assert params["lag_time_constant_s"] == pytest.approx(1 / (2 * np.pi * 150.0), rel=0.2)
+
+
+def test_a_lightly_damped_mode_behind_a_pole_beyond_nyquist_is_found_and_takes_most_of_the_gap():
+    """20 Hz triangles through an amplifier pole above the Nyquist frequency (a lag of 0.13 sample)
+    and a lightly damped 1.5 kHz mode. The zero-order-hold mode on a lag grid from 0.3 sample put
+    the mode 3.7 % high and took a third of the held-out gap (4.9-5.1x the noise left); the
+    first-order hold, the finer lag grid and the Nelder-Mead refinement find it within 2 % and take
+    two thirds."""
+    f0, zeta = 1500.0, 0.03
+    rep, summary = diagnose_loops(_record(21, f0=f0, zeta=zeta, pole_hz=12000.0, kind="triangles", triangle_hz=20.0))
+    assert rep["verdict"][:1] == ["dynamics"], summary
+    params = {e["name"]: e for e in rep["effects"]}["dynamics"]["params"]
+    assert params["resonance_hz"] == pytest.approx(f0, rel=0.02)
+    assert params["damping_ratio"] == pytest.approx(zeta, rel=0.3)
+    assert rep["final"]["heldout_shrink"] > 0.5, summary

@@ -27,7 +27,7 @@ datasheet), every case here is a record from
   rate-independent model can know relays that only the held-out part switches).
 
 Injected forms (the candidates in :mod:`.model` are: drift quadratic in t; creep a bank of
-first-order relaxations; dynamics a first-order lag after the hysteresis, with a zero-order-hold
+first-order relaxations; dynamics a first-order lag after the hysteresis, with a first-order-hold
 second-order mode after it where the training part rings; coupling ``c·y_m``):
 
 * creep — superposition of step responses of every increment of the hysteresis output, with a
