@@ -117,8 +117,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: measured on spent records of 29001–29003); 31001–31003 first for the creep bank reaching 10
 #: training spans (d1a2311; prompted and measured on spent records of 30001–30003); 32001–32003 first
 #: for the prior_dependent reading of the remainder (5908a0a: reporting only, every verdict as
-#: before; prompted and measured on spent records of 31001–31003).
-FRESH_SEEDS = (32001, 32002, 32003)
+#: before; prompted and measured on spent records of 31001–31003); 33001–33003 first for the resonance
+#: under a first-order hold with a Nelder–Mead refinement and the lag grid from 0.03 sample (9059a67;
+#: prompted and measured on spent records of 32001–32003).
+FRESH_SEEDS = (33001, 33002, 33003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
