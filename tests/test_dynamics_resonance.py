@@ -10,7 +10,8 @@ import pytest
 from scipy.signal import bilinear, lfilter, lfilter_zi, sawtooth
 
 from afmsim.diagnosis import diagnose_loops
-from afmsim.diagnosis.loops.model import Design, ModelSpec, estimate_resonance, fit_model
+from afmsim.diagnosis.loops.model import (Design, ModelSpec, _filt, _LagFits, dynamics_lag_filter, estimate_resonance,
+                                          fit_model, relay_curvature, resonance_filter)
 from afmsim.diagnosis.loops.validation import _plant
 
 FS = 10000.0
@@ -103,3 +104,37 @@ def test_a_lightly_damped_mode_behind_a_pole_beyond_nyquist_is_found_and_takes_m
     assert params["resonance_hz"] == pytest.approx(f0, rel=0.02)
     assert params["damping_ratio"] == pytest.approx(zeta, rel=0.3)
     assert rep["final"]["heldout_shrink"] > 0.5, summary
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_the_column_filter_gives_lfilters_numbers(order):
+    """The dynamics search's own column kernel (:func:`_filt`, for speed) against
+    :func:`scipy.signal.lfilter` from the same steady state: equal to the last bit, on a first-order
+    lag and a second-order mode, for a matrix of columns and for one column."""
+    dt = 1.0 / FS
+    b, a = dynamics_lag_filter(3.3e-4, dt) if order == 1 else resonance_filter(1200.0, 0.03, dt)
+    cols = np.random.default_rng(order).normal(size=(3000, 40)).cumsum(axis=0)
+    expected, _ = lfilter(b, a, cols, axis=0, zi=lfilter_zi(b, a)[:, None] * cols[0][None, :])
+    np.testing.assert_array_equal(_filt(b, a, cols), expected)
+    np.testing.assert_array_equal(_filt(b, a, cols[:, 3])[:, 0], expected[:, 3])
+    with pytest.raises(ValueError, match="second order"):
+        _filt(np.ones(4), np.r_[1.0, np.zeros(3)], cols)
+
+
+def test_a_search_on_the_samples_up_to_the_last_training_one_fits_as_the_whole_record():
+    """The lag search computes the record only up to its last training sample (filters are causal):
+    its weights and training predictions, creep bank included, are the whole record's fit's."""
+    cols = _record(7, f0=900.0, zeta=0.03)
+    t, v, x = cols["t_s"], cols["v_V"], cols["x_m"]
+    train = np.arange(t.size) < int(0.6 * t.size)
+    d = Design(t, v, x, None, train)
+    hyst = np.hstack([d.free, d.hyst("preisach")])
+    extra = np.empty((t.size, 0))
+    args = (d, hyst, relay_curvature(d.n_levels + 1), d.free.shape[1], extra)
+    whole, prefix = _LagFits(*args, creep=True), _LagFits(*args, creep=True, rows=int(train.sum()))
+    lag = ("tustin", 2e-4, (900.0, 0.03))
+    (p_whole, wf_whole, wp_whole, *_), (p_prefix, wf_prefix, wp_prefix, *_) = whole(lag), prefix(lag)
+    assert p_prefix.size == train.sum() < p_whole.size
+    np.testing.assert_allclose(wf_prefix, wf_whole, rtol=1e-9, atol=1e-12 * np.abs(wf_whole).max())
+    np.testing.assert_allclose(wp_prefix, wp_whole, rtol=1e-9, atol=1e-12 * np.abs(wp_whole).max())
+    np.testing.assert_allclose(p_prefix, p_whole[train], rtol=0, atol=1e-12 * np.ptp(x))

@@ -68,7 +68,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import minimize, nnls
 from scipy.linalg import solve_triangular
-from scipy.signal import cont2discrete, lfilter, lfilter_zi
+from scipy.signal import cont2discrete, lfilter_zi
 
 from ..engine import decorrelation_length, noise_floor, sigma_from_second_differences
 from ...hysteresis import play
@@ -362,12 +362,40 @@ def resonance_band(dt: float) -> tuple[float, float]:
     return lo, max(0.45 * fs, 2 * lo)
 
 
-def _filt(b, a, cols):
-    """Filter columns (axis 0) starting in steady state at the first sample."""
-    cols = np.atleast_2d(cols.T).T if cols.ndim == 1 else cols
-    zi = lfilter_zi(b, a)[:, None] * cols[0][None, :]
-    out, _ = lfilter(b, a, cols, axis=0, zi=zi)
+@njit(cache=True)
+def _second_order_columns(b, a, x, z0, z1):  # pragma: no cover - compiled
+    """Direct form II transposed, ``a[0] = 1``, along axis 0 of ``x`` (rows outer, columns inner:
+    the rows are contiguous), from the states ``z0, z1`` (one per column, updated in place)."""
+    n, m = x.shape
+    out = np.empty_like(x)
+    b0, b1, b2, a1, a2 = b[0], b[1], b[2], a[1], a[2]
+    for k in range(n):
+        for j in range(m):
+            xk = x[k, j]
+            y = b0 * xk + z0[j]
+            z0[j] = b1 * xk + z1[j] - a1 * y
+            z1[j] = b2 * xk - a2 * y
+            out[k, j] = y
     return out
+
+
+def _filt(b, a, cols):
+    """Filter columns (axis 0) by a first- or second-order ``b, a``, starting in steady state at the
+    first sample; the same numbers as ``scipy.signal.lfilter(b, a, cols, axis=0, zi=...)``.
+
+    The dynamics search filters every hysteresis column (hundreds, thousands of samples) a few
+    hundred times per record; ``lfilter`` walks each column in its own strided pass and took
+    45 % of a diagnosis with a resonance (49 of 110 s on a ringing step record), this kernel runs
+    over the contiguous rows at about a third of its time."""
+    cols = np.atleast_2d(cols.T).T if cols.ndim == 1 else cols
+    b, a = np.asarray(b, dtype=np.float64) / a[0], np.asarray(a, dtype=np.float64) / a[0]
+    if a.size != b.size or a.size > 3:
+        raise ValueError(f"filters up to second order with as many b as a coefficients, got b {b.size}, a {a.size}")
+    zi = lfilter_zi(b, a)[:, None] * cols[0][None, :]
+    pad = 3 - a.size
+    b, a = np.r_[b, np.zeros(pad)], np.r_[a, np.zeros(pad)]
+    zi = np.vstack([zi, np.zeros((pad, cols.shape[1]))])
+    return _second_order_columns(b, a, np.ascontiguousarray(cols, dtype=np.float64), zi[0].copy(), zi[1].copy())
 
 
 def dynamics_filters(lag, dt: float) -> list:
@@ -888,17 +916,24 @@ def _train_mse(d: Design, fitted: FittedModel) -> float:
 
 
 class _LagFits:
-    """Fits of one model's columns on the training part, one per dynamics lag, cached: the lag
-    search and the final fit share them (:func:`_fit_columns`).
+    """Fits of one model's columns on the training part, one per dynamics lag, cached (the lag
+    search of :func:`_fit_columns` comes back to its grid points).
 
     ``hyst_cols``: the hysteresis columns, their first ``n_free_h`` free (offset, linear, the
     Bouc–Wen law's), the rest non-negative (relays, plays; ``smooth``: the relay density's prior);
     ``extra``: the effects' own free columns; ``creep``: fit the creep bank too. Calling it with a
     lag ``(discretisation, τ, mode)`` or None returns ``(prediction, free weights, positive
-    weights, hysteresis part, creep)`` with ``creep = (bank weights, τs)`` or None."""
+    weights, hysteresis part, creep)`` with ``creep = (bank weights, τs)`` or None.
 
-    def __init__(self, d: Design, hyst_cols: np.ndarray, smooth, n_free_h: int, extra: np.ndarray, *, creep: bool):
-        self.d, self.hyst_cols, self.smooth, self.n_free_h, self.extra, self.creep = d, hyst_cols, smooth, n_free_h, extra, creep
+    ``rows``: compute only the record's first ``rows`` samples (the predictions are that long).
+    Every filter is causal, so a search that needs only the training error gets the same weights
+    and training predictions from the samples up to the last training one, at the cost of those."""
+
+    def __init__(self, d: Design, hyst_cols: np.ndarray, smooth, n_free_h: int, extra: np.ndarray, *, creep: bool,
+                 rows: int | None = None):
+        rows = d.x.size if rows is None else int(rows)
+        self.d, self.smooth, self.n_free_h, self.creep = d, smooth, n_free_h, creep
+        self.hyst_cols, self.extra, self.x, self.train = hyst_cols[:rows], extra[:rows], d.x[:rows], d.train[:rows]
         self.n_pos_h = hyst_cols.shape[1] - n_free_h
         self.fits: dict = {}
 
@@ -915,7 +950,7 @@ class _LagFits:
             cols = _filt(b, a, cols)
         free = np.hstack([cols[:, :nf], self.extra])
         pos = cols[:, nf:]
-        wf, wp = solve_weights(free, pos, d.x, d.train, smooth=self.smooth, smoothing=d.smoothing)
+        wf, wp = solve_weights(free, pos, self.x, self.train, smooth=self.smooth, smoothing=d.smoothing)
         hyst_part = self.hyst_cols[:, :nf] @ wf[:nf] + self.hyst_cols[:, nf:] @ wp[:self.n_pos_h]
         return free @ wf + pos @ wp, wf, wp, hyst_part
 
@@ -963,16 +998,19 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
     n_params = hyst_cols.shape[1] + extra.shape[1] + (3 if kind == "bouc_wen" else 0)  # + β, γ, n
 
     fitted = _LagFits(d, hyst_cols, smooth, n_free_h, extra, creep="creep" in eff)
-    # the lag and resonance search runs on the coarse grid when the record's grid is finer (the same
-    # fit, a quarter of the relays; the search's dozens of refits dominate the diagnosis time)
-    search = _LagFits(d, np.hstack([d.free, d.relays(SEARCH_LEVELS)]), relay_curvature(SEARCH_LEVELS + 1), n_free_h,
-                      extra, creep="creep" in eff) \
-        if kind == "preisach" and "dynamics" in eff and d.n_levels > SEARCH_LEVELS else fitted
 
     lag = None
     if "dynamics" in eff:
+        # the lag and resonance search runs on the coarse grid when the record's grid is finer (the
+        # same fit, a quarter of the relays), and up to the last training sample only (its dozens
+        # of refits dominate the diagnosis time; the chosen lag is then fitted on the whole record)
+        coarse = kind == "preisach" and d.n_levels > SEARCH_LEVELS
+        search = _LagFits(d, np.hstack([d.free, d.relays(SEARCH_LEVELS)]) if coarse else hyst_cols,
+                          relay_curvature(SEARCH_LEVELS + 1) if coarse else smooth, n_free_h, extra,
+                          creep="creep" in eff, rows=int(np.flatnonzero(d.train)[-1]) + 1)
+
         def train_error(candidate):
-            return float(np.mean((search(candidate)[0] - d.x)[d.train] ** 2))
+            return float(np.mean((search(candidate)[0] - search.x)[search.train] ** 2))
 
         def best_lag(mode, discretisations=tuple(LAG_DISCRETISATIONS)):
             """(training error, (discretisation, τ, mode)) of the best lag with the resonance ``mode``."""
@@ -995,7 +1033,7 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
 
         error_lag, lag = best_lag(None)
         lag_prediction = search(lag)[0]
-        estimate = estimate_resonance(d.x, lag_prediction, d.train, d.dt)
+        estimate = estimate_resonance(search.x, lag_prediction, search.train, d.dt)
         if estimate is not None:
             f0, zeta = estimate
             modes = [(f0 * (1 + zeta * step), zeta * factor) for step in RESONANCE_F0_STEPS
@@ -1007,7 +1045,7 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
                 mode, error = refine_mode(lambda m: train_error((lag_mode[0], lag_mode[1], m)), mode, d.dt)
                 if error < error_mode:
                     error_mode, lag_mode = error, (lag_mode[0], lag_mode[1], mode)
-            n_eff = max(int(d.train.sum()) / decorrelation_length((d.x - lag_prediction)[d.train]), 5.0)
+            n_eff = max(int(d.train.sum()) / decorrelation_length((search.x - lag_prediction)[search.train]), 5.0)
             if n_eff * np.log(error_mode / error_lag) + 2 * np.log(n_eff) < -RESONANCE_BIC:
                 lag = lag_mode
         discretisation, tau, mode = lag
