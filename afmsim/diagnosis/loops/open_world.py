@@ -119,8 +119,9 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: for the prior_dependent reading of the remainder (5908a0a: reporting only, every verdict as
 #: before; prompted and measured on spent records of 31001–31003); 33001–33003 first for the resonance
 #: under a first-order hold with a Nelder–Mead refinement and the lag grid from 0.03 sample (9059a67;
-#: prompted and measured on spent records of 32001–32003).
-FRESH_SEEDS = (33001, 33002, 33003)
+#: prompted and measured on spent records of 32001–32003); 34001–34003 again for 9059a67's method, its
+#: dynamics search sped up with every number unchanged (415bbc8; identical reports on spent records).
+FRESH_SEEDS = (34001, 34002, 34003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
