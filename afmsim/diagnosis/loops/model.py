@@ -927,7 +927,8 @@ class _LagFits:
 
     ``rows``: compute only the record's first ``rows`` samples (the predictions are that long).
     Every filter is causal, so a search that needs only the training error gets the same weights
-    and training predictions from the samples up to the last training one, at the cost of those."""
+    and training predictions (to the last bits: shorter arrays change the BLAS products' blocking)
+    from the samples up to the last training one, at the cost of those."""
 
     def __init__(self, d: Design, hyst_cols: np.ndarray, smooth, n_free_h: int, extra: np.ndarray, *, creep: bool,
                  rows: int | None = None):
