@@ -140,19 +140,26 @@ def fit_bouc_wen_shape(u, block: int, free: np.ndarray, x: np.ndarray, mask: np.
     column) and ``extra`` free columns come on top (drift, cross-coupling), so that the shape is
     fitted jointly with the effects instead of absorbing them."""
     extra = np.empty((x.size, 0)) if extra is None else extra
+    head = np.hstack([free, backbone_columns(free)])  # the columns no shape changes
+    target = x[mask]
+    untransformed = _MaskedColumns(head, extra, mask) if transform is None else None
 
-    def misfit(hyst_cols) -> float:
-        cols = np.hstack([free, hyst_cols])
-        if transform is not None:
-            cols = transform(cols)
-        if not np.all(np.isfinite(cols)):
-            return float("inf")
-        a = np.hstack([cols, extra])[mask]
-        w, *_ = np.linalg.lstsq(a, x[mask], rcond=None)
-        return float(np.mean((a @ w - x[mask]) ** 2))
+    def misfit(states) -> float:
+        """Mean square training error with the state columns ``states`` (M, k) after ``head``."""
+        if untransformed is not None:
+            a = untransformed.with_states(states)
+            if a is None:
+                return float("inf")
+        else:
+            cols = transform(np.hstack([head, states]))
+            if not np.all(np.isfinite(cols)):
+                return float("inf")
+            a = np.hstack([cols, extra])[mask]
+        w, *_ = np.linalg.lstsq(a, target, rcond=None)
+        return float(np.mean((a @ w - target) ** 2))
 
     def error(theta) -> float:
-        return misfit(bouc_wen_columns(u, BoucWenShape.from_theta(theta), block, free))
+        return misfit(bouc_wen_state(u, BoucWenShape.from_theta(theta), block)[:, None])
 
     theta0 = np.array(min(START_GRID, key=error))
     options = {"maxfev": max_evaluations, "xatol": 1e-3, "fatol": 1e-6 * error(theta0)}
@@ -170,21 +177,45 @@ def fit_bouc_wen_shape(u, block: int, free: np.ndarray, x: np.ndarray, mask: np.
     return BoucWenShape.from_theta(best.x), float(np.sqrt(best.fun))
 
 
+class _MaskedColumns:
+    """The shape search's least-squares matrix on the training rows, ``[head, states, extra][mask]``,
+    with ``head`` and ``extra`` copied in once and only the state columns written per evaluation (the
+    same matrix, so the same fit, as stacking it anew: a few hundred evaluations per record)."""
+
+    def __init__(self, head: np.ndarray, extra: np.ndarray, mask: np.ndarray):
+        self.head, self.extra = head[mask], extra[mask]
+        self.mask = mask
+        self.finite = bool(np.all(np.isfinite(self.head)) and np.all(np.isfinite(self.extra)))
+        self._buffers: dict[int, np.ndarray] = {}
+
+    def with_states(self, states: np.ndarray) -> np.ndarray | None:
+        """The matrix with ``states`` (M, k) in place; None where a column is not finite."""
+        if not (self.finite and np.all(np.isfinite(states))):
+            return None
+        k, nh = states.shape[1], self.head.shape[1]
+        if k not in self._buffers:
+            a = np.empty((self.head.shape[0], nh + k + self.extra.shape[1]))
+            a[:, :nh], a[:, nh + k:] = self.head, self.extra
+            self._buffers[k] = a
+        a = self._buffers[k]
+        a[:, nh:nh + k] = states[self.mask]
+        return a
+
+
 def _linear_duhem_start(u, block: int, free: np.ndarray, x: np.ndarray, mask: np.ndarray, misfit) -> np.ndarray:
     """Search start (θ of :meth:`BoucWenShape.from_theta`) from the law's linear case, n = 1 and
     γ = 0 (the Coleman–Hodgdon class): there dh/du = A(u) − β·sign(du)·h is linear in h, so the state
     of A = a_low·(1 − u) + a_high·u is a_low·h₀ + a_high·h₁ (h₀, h₁ the states of the drive terms
     1 − u and u). For each β of :data:`LINEAR_BETAS` both enter one least-squares fit (``misfit`` of
-    the columns [u'², u'³, h₀, h₁]); the best β, and a_high/a_low from its weights (fitted without
+    the state columns h₀, h₁ after [1, u', u'², u'³]); the best β, and a_high/a_low from its weights (fitted without
     the effects' transform), give the start. n = 1 lies at the edge of the search's range: the start
     takes n = 1 + 2/(1 + e⁴) ≈ 1.04."""
-    def columns(beta):
+    def states(beta):
         ends = ((1.0, 0.0), (0.0, 1.0))
-        states = [bouc_wen_state(u, BoucWenShape(beta=beta, gamma=0.0, n=1.0, a_low=lo, a_high=hi), block) for lo, hi in ends]
-        return np.column_stack([backbone_columns(free), *states])
+        return np.column_stack([bouc_wen_state(u, BoucWenShape(beta=beta, gamma=0.0, n=1.0, a_low=lo, a_high=hi), block) for lo, hi in ends])
 
-    beta = min(LINEAR_BETAS, key=lambda b: misfit(columns(b)))
-    a = np.hstack([free, columns(beta)])
+    beta = min(LINEAR_BETAS, key=lambda b: misfit(states(b)))
+    a = np.hstack([free, backbone_columns(free), states(beta)])
     *_, w_low, w_high = np.linalg.lstsq(a[mask], x[mask], rcond=None)[0]
     phi = np.arctan2(w_high, w_low)  # the direction of (a_low, a_high), up to the sign c takes
     phi = (phi + 0.25 * np.pi) % np.pi - 0.25 * np.pi  # into (−π/4, 3π/4)
