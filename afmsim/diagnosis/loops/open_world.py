@@ -120,8 +120,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: before; prompted and measured on spent records of 31001–31003); 33001–33003 first for the resonance
 #: under a first-order hold with a Nelder–Mead refinement and the lag grid from 0.03 sample (9059a67;
 #: prompted and measured on spent records of 32001–32003); 34001–34003 again for 9059a67's method, its
-#: dynamics search sped up, verdicts unchanged and fitted values equal to the last bits (415bbc8).
-FRESH_SEEDS = (34001, 34002, 34003)
+#: dynamics search sped up, verdicts unchanged and fitted values equal to the last bits (415bbc8);
+#: 35001–35003 a third time for that method, its Bouc–Wen search's matrix built once (aae6acc: the same
+#: numbers, reports identical on spent records).
+FRESH_SEEDS = (35001, 35002, 35003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
