@@ -661,6 +661,37 @@ def test_a_gap_the_prior_sets_is_read_as_prior_dependent():
     assert "reading" not in rep["unexplained"] and "tests the prior" not in summary
 
 
+def test_a_gap_held_out_where_no_split_trains_the_states_is_read_as_an_extrapolation():
+    """Spent fresh seed 35003, null 18: afmsim's own stage under a 2.7 s noise drive. No split holds
+    out a part in relay states the training part determines, so every held-out sample is scored; the
+    baseline fits its training part to the noise and leaves 5.7× held out, more than the two priors'
+    spread covers. The reading says the gap measures an extrapolation, and the verdict is unchanged
+    (``unexplained``, nothing named)."""
+    case = make_case(case_plan()[18], np.random.default_rng([35003, 18]))
+    assert case["plant"] == "afmsim_preisach" and case["excitation"] == "noise"
+    rep, summary, _ = diagnose_record(load_record(case["columns"]), candidates=[])
+    b, un = rep["baseline"], rep["unexplained"]
+    assert rep["record"]["split"] == "default_untrained" and b["heldout_scoring"] == "before_excursion"
+    assert rep["status"] == "unexplained" and b["gap_to_noise"] > 2.0 and un["train_gap_to_noise"] <= 2.0
+    assert b["prior_spread_to_noise"] ** 2 < b["gap_to_noise"] ** 2 - 1.0  # not read as prior_dependent
+    assert un["reading"] == "untrained_states" and "extrapolates into states it never saw" in summary
+
+
+@pytest.mark.parametrize("reading, split, expected", [
+    ("heldout_only", "default_untrained", "untrained_states"),
+    ("heldout_only", "default", "heldout_only"),
+    ("heldout_only", "moved_to_trained_states", "heldout_only"),
+    ("prior_dependent", "default_untrained", "prior_dependent"),  # the spread's reading stays
+    ("misfit_throughout", "default_untrained", "misfit_throughout"),
+])
+def test_only_a_held_out_only_remainder_of_a_fallen_back_split_is_read_as_untrained(reading, split, expected):
+    from afmsim.diagnosis.loops.attribute import _read_untrained_split
+
+    unexplained = {"reading": reading}
+    _read_untrained_split(unexplained, split)
+    assert unexplained["reading"] == expected
+
+
 def test_the_two_priors_agree_on_the_training_part_they_both_fit():
     """The spread compares the grid's fits under SMOOTHING_CHOICES on the training part: on the
     training samples both fit the same data (5 nm noise), so they agree there to a fifth of the

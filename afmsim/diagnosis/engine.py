@@ -460,7 +460,8 @@ def ratio_text(x) -> str:
 #: RMS gap to the noise: a model that misses its own training part lacks capacity or a term that acts
 #: throughout; one that fits it but not the held-out part meets states or changes it never saw — and
 #: where a front measures how far its admissible priors part on the held-out part (the loop front's
-#: ``prior_dependent``), states whose prediction the prior, not the data, sets.
+#: ``prior_dependent``), states whose prediction the prior, not the data, sets; where no split holds
+#: out trained states (the loop front's ``untrained_states``), an extrapolation.
 READINGS = {
     "misfit_throughout": "Reading: the model misses its own training part too ({train} the noise floor): its "
                          "baseline family or capacity falls short for this instrument, or something outside the "
@@ -472,6 +473,11 @@ READINGS = {
                        "part the baseline's admissible priors predict {spread} the noise apart (RMS), no less than "
                        "the gap above the noise: the training part leaves that much to the prior, so the gap tests "
                        "the prior, not the data — it neither shows a missing effect nor rules one out.",
+    "untrained_states": "Reading: the model fits its training part ({train} the noise floor) but not the held-out "
+                        "part, and no split of this record holds out a part in states its training part determined: "
+                        "the gap measures how the model extrapolates into states it never saw — it neither shows a "
+                        "missing effect nor rules one out; a drive that revisits its states (a repeated sweep) "
+                        "would test it.",
 }
 
 
