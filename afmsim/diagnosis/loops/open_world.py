@@ -122,7 +122,8 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: prompted and measured on spent records of 32001–32003); 34001–34003 again for 9059a67's method, its
 #: dynamics search sped up, verdicts unchanged and fitted values equal to the last bits (415bbc8);
 #: 35001–35003 a third time for that method, its Bouc–Wen search's matrix built once (aae6acc: the same
-#: numbers, reports identical on spent records).
+#: numbers, reports identical on spent records); the untrained_states reading of the remainder came after
+#: that run (83b6dfd: reporting only, prompted by two of its nulls).
 FRESH_SEEDS = (35001, 35002, 35003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
