@@ -166,7 +166,7 @@ def fit_bouc_wen_shape(u, block: int, free: np.ndarray, x: np.ndarray, mask: np.
     best = minimize(error, theta0, method="Nelder-Mead", options=options)
     if DRIVE_TERM_EVALUATIONS > 0:  # a simplex keeps its best vertex: never worse than the classic law
         starts = [np.r_[best.x, 0.0]]
-        linear = _linear_duhem_start(u, block, free, x, mask, misfit)
+        linear = _linear_duhem_start(u, block, head, x, mask, misfit)
         if error(linear) < best.fun:  # refined only where it already beats the classic law (it rarely does on
             starts.append(linear)     # a Bouc–Wen stage: half the search's time saved there)
         for start in starts:
@@ -202,20 +202,21 @@ class _MaskedColumns:
         return a
 
 
-def _linear_duhem_start(u, block: int, free: np.ndarray, x: np.ndarray, mask: np.ndarray, misfit) -> np.ndarray:
+def _linear_duhem_start(u, block: int, head: np.ndarray, x: np.ndarray, mask: np.ndarray, misfit) -> np.ndarray:
     """Search start (θ of :meth:`BoucWenShape.from_theta`) from the law's linear case, n = 1 and
     γ = 0 (the Coleman–Hodgdon class): there dh/du = A(u) − β·sign(du)·h is linear in h, so the state
     of A = a_low·(1 − u) + a_high·u is a_low·h₀ + a_high·h₁ (h₀, h₁ the states of the drive terms
     1 − u and u). For each β of :data:`LINEAR_BETAS` both enter one least-squares fit (``misfit`` of
-    the state columns h₀, h₁ after [1, u', u'², u'³]); the best β, and a_high/a_low from its weights (fitted without
+    the state columns h₀, h₁ after ``head`` = [1, u', u'², u'³]); the best β, and a_high/a_low from its weights (fitted without
     the effects' transform), give the start. n = 1 lies at the edge of the search's range: the start
     takes n = 1 + 2/(1 + e⁴) ≈ 1.04."""
     def states(beta):
         ends = ((1.0, 0.0), (0.0, 1.0))
         return np.column_stack([bouc_wen_state(u, BoucWenShape(beta=beta, gamma=0.0, n=1.0, a_low=lo, a_high=hi), block) for lo, hi in ends])
 
-    beta = min(LINEAR_BETAS, key=lambda b: misfit(states(b)))
-    a = np.hstack([free, backbone_columns(free), states(beta)])
+    scanned = {beta: states(beta) for beta in LINEAR_BETAS}
+    beta = min(LINEAR_BETAS, key=lambda b: misfit(scanned[b]))
+    a = np.hstack([head, scanned[beta]])
     *_, w_low, w_high = np.linalg.lstsq(a[mask], x[mask], rcond=None)[0]
     phi = np.arctan2(w_high, w_low)  # the direction of (a_low, a_high), up to the sign c takes
     phi = (phi + 0.25 * np.pi) % np.pi - 0.25 * np.pi  # into (−π/4, 3π/4)
