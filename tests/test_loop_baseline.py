@@ -214,12 +214,13 @@ def test_the_fallback_scoring_stops_at_a_hold_just_above_the_training_range():
     part determines the relay state of 1 held-out sample of 3,157, so the fallback scores the
     samples before the first excursion. A hold 0.08 V above the training part's highest (0.9 % of
     the range, inside the tolerance) missed the stage by 640 nm where the grid is clipped, and was
-    counted: 36× the noise. The fallback now ends at any move beyond the range."""
+    counted: 36× the noise. The fallback now ends at any move beyond the range. (Split at 60 % as
+    given: chosen, the split holds out an interior block in trained states instead.)"""
     spec = case_plan()[18]
     assert spec.category == "null"
     case = make_case(spec, np.random.default_rng([22001, 18]))
     assert case["plant"] == "afmsim_preisach"
-    rep, _, internals = diagnose_record(load_record(case["columns"]), candidates=[])
+    rep, _, internals = diagnose_record(load_record(case["columns"]), candidates=[], train_fraction=0.6)
     d = internals["design"]
     scored, rule = d.scored()
     assert rule == "before_excursion" == rep["baseline"]["heldout_scoring"]
@@ -537,8 +538,8 @@ def test_with_effects_the_bouc_wen_shape_is_refitted_jointly_with_them():
 
 def test_a_gap_scored_in_untrained_relay_states_says_so():
     """A generalised-PI null under band-limited noise (open-world seed 14002, case 23, published),
-    split at 60 % as given (:func:`choose_split` keeps 60 % here too: at 80 %, the first later split
-    with trained held-out states, 3 % of the held-out part would be scored):
+    split at 60 % as given (no later split holds out trained states: at 80 %, the first with any, 3 %
+    of the held-out part would be scored; :func:`choose_split` holds out an interior block instead):
     the training part reaches its top voltage only in its last samples, so no held-out sample is in a
     relay state it determines (0 of 3200; a fit on the whole record leaves 8×); the gap scored by the
     fallback rule (91× the noise) is the grid's extrapolation, and the summary says so. A record whose
@@ -548,7 +549,7 @@ def test_a_gap_scored_in_untrained_relay_states_says_so():
     case = make_case(spec, np.random.default_rng([14002, 23]))
     rep, summary, _ = diagnose_record(load_record(case["columns"]), candidates=[], train_fraction=0.6)
     assert rep["baseline"]["heldout_scoring"] == "before_excursion" and rep["record"]["split"] == "given"
-    assert choose_split(load_record(case["columns"])) == (0.6, "default_untrained")
+    assert choose_split(load_record(case["columns"]))[1] == "interior_block"  # chosen, it holds out trained states
     assert rep["status"] == "unexplained"
     assert "relay states that the training part determines" in summary
     t, v, train = _drive()
@@ -619,7 +620,8 @@ def test_the_split_moves_on_until_the_held_out_states_are_trained():
     t, v = _peak_at_the_split()
     x = AsymmetricPreisach().apply(v) + 8e-9 * np.random.default_rng(3).standard_normal(t.size)
     rec = load_record({"t_s": t, "v_V": v, "x_m": x})
-    assert choose_split(rec) == (0.7, "moved_to_trained_states")
+    train, rule = choose_split(rec)
+    assert rule == "moved_to_trained_states" and train.mean() == pytest.approx(0.7, abs=1e-3) and train[0]
     fixed, fixed_summary, _ = diagnose_record(rec, candidates=[], train_fraction=0.6)
     assert "Split:" not in fixed_summary
     chosen, summary, _ = diagnose_record(rec, candidates=[])
@@ -629,15 +631,18 @@ def test_the_split_moves_on_until_the_held_out_states_are_trained():
     assert chosen["baseline"]["heldout_scoring"] == "trained_states" and chosen["baseline"]["gap_to_noise"] < 2.0
     assert chosen["status"] == "nothing_missing"
     noise = load_record({"t_s": t, "v_V": v, "x_m": 8e-9 * np.random.default_rng(4).standard_normal(t.size)})
-    assert choose_split(noise) == choose_split(rec)
+    same_train, same_rule = choose_split(noise)
+    assert same_rule == rule and np.array_equal(same_train, train)
     t, v, _ = _drive()
     steady = load_record({"t_s": t, "v_V": v, "x_m": _record(AsymmetricPreisach().apply(v), v, np.random.default_rng(1))})
-    assert choose_split(steady) == (0.6, "default")
+    train, rule = choose_split(steady)
+    assert rule == "default" and train.mean() == pytest.approx(0.6, abs=1e-3)
 
 
 def test_a_gap_the_prior_sets_is_read_as_prior_dependent():
-    """afmsim's stage under band-limited noise, no effect (spent open-world seed 31002, case 19):
-    every held-out sample is in a relay state the training part does not determine, the baseline
+    """afmsim's stage under band-limited noise, no effect (spent open-world seed 31002, case 19),
+    split at 60 % as given: every held-out sample is in a relay state the training part does not
+    determine, the baseline
     leaves 8.8× the noise held out, and the relay grid's two admissible priors predict the held-out
     part further apart than that gap's excess over the noise: the reading says the gap tests the
     prior. The same stage under triangles (31002/18, trained held-out states, 1.0×) has a spread
@@ -646,7 +651,7 @@ def test_a_gap_the_prior_sets_is_read_as_prior_dependent():
     assert spec.category == "null"
     case = make_case(spec, np.random.default_rng([31002, 19]))
     assert case["plant"] == "afmsim_preisach" and case["excitation"] == "noise"
-    rep, summary, _ = diagnose_record(load_record(case["columns"]), candidates=[])
+    rep, summary, _ = diagnose_record(load_record(case["columns"]), candidates=[], train_fraction=0.6)
     b, un = rep["baseline"], rep["unexplained"]
     assert b["family"] == "preisach" and b["heldout_scoring"] == "before_excursion"
     assert rep["status"] == "unexplained" and b["gap_to_noise"] > 2.0
@@ -661,12 +666,40 @@ def test_a_gap_the_prior_sets_is_read_as_prior_dependent():
     assert "reading" not in rep["unexplained"] and "tests the prior" not in summary
 
 
-def test_a_gap_held_out_where_no_split_trains_the_states_is_read_as_an_extrapolation():
-    """Spent fresh seed 35003, null 18: afmsim's own stage under a 2.7 s noise drive. No split holds
-    out a part in relay states the training part determines, so every held-out sample is scored; the
-    baseline fits its training part to the noise and leaves 5.7× held out, more than the two priors'
-    spread covers. The reading says the gap measures an extrapolation, and the verdict is unchanged
-    (``unexplained``, nothing named)."""
+def test_an_interior_block_tests_the_baseline_where_no_split_at_the_end_can():
+    """The same record as above (spent seed 31002, case 19), its split chosen: no split at the end
+    holds out a part in relay states the training part determines, so a block inside the record is
+    held out, the parts before and after it fitted — chosen from the drive alone (a displacement of
+    pure noise gets the same block), its voltage inside the rest's range. The baseline then leaves
+    less than 2× the noise held out, in trained states: ``nothing_missing`` where the end-split read
+    8.8×. The summary names the held-out span."""
+    case = make_case(case_plan()[19], np.random.default_rng([31002, 19]))
+    rec = load_record(case["columns"])
+    train, rule = choose_split(rec)
+    assert rule == "interior_block" and train[0] and train[-1] and not train.all()
+    block = np.flatnonzero(~train)
+    assert np.all(np.diff(block) == 1) and block.size == pytest.approx(0.2 * rec.n, abs=1)
+    assert rec.v[block].max() < rec.v[train].max() and rec.v[block].min() > rec.v[train].min()
+    noise = load_record({"t_s": rec.t, "v_V": rec.v, "x_m": 8e-9 * np.random.default_rng(2).standard_normal(rec.n)})
+    assert np.array_equal(choose_split(noise)[0], train)
+    rep, summary, _ = diagnose_record(rec, candidates=[])
+    r, b = rep["record"], rep["baseline"]
+    assert r["split"] == "interior_block" and r["heldout_from_s"] == pytest.approx(rec.t[block[0]])
+    assert r["heldout_to_s"] == pytest.approx(rec.t[block[-1]]) and b["heldout_scoring"] == "trained_states"
+    assert b["gap_to_noise"] < 2.0 and rep["status"] == "nothing_missing"
+    assert "is held out and the parts before and after it fitted" in summary
+
+
+def test_a_gap_held_out_where_no_split_trains_the_states_is_read_as_an_extrapolation(monkeypatch):
+    """Spent fresh seed 35003, null 18: afmsim's own stage under a 2.7 s noise drive, with no
+    interior block to try (``BLOCK_STARTS`` emptied; with them, it gets one and fits to 1.05×). No
+    split holds out a part in relay states the training part determines, so every held-out sample
+    is scored; the baseline fits its training part to the noise and leaves 5.7× held out, more than
+    the two priors' spread covers. The reading says the gap measures an extrapolation, and the
+    verdict is unchanged (``unexplained``, nothing named)."""
+    from afmsim.diagnosis.loops import attribute
+
+    monkeypatch.setattr(attribute, "BLOCK_STARTS", ())
     case = make_case(case_plan()[18], np.random.default_rng([35003, 18]))
     assert case["plant"] == "afmsim_preisach" and case["excitation"] == "noise"
     rep, summary, _ = diagnose_record(load_record(case["columns"]), candidates=[])

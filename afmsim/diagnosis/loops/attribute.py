@@ -4,8 +4,9 @@ Protocol of :func:`diagnose_loops`:
 
 1. the record is validated/decimated (:func:`~afmsim.diagnosis.loops.record.load_record`); the first
    ``train_fraction`` (60 %; 70 % or 80 % where the held-out part after 60 % has too few samples in
-   relay states the training part determines, :func:`choose_split`) of the time is the training
-   part, the rest is held out and seen by no fit;
+   relay states the training part determines; else a fifth of the record inside it, trained on both
+   sides, where such a block is: :func:`choose_split`) of the time is the training part, the rest is
+   held out and seen by no fit;
    held-out samples whose voltage leaves the training range (by > 1 %), and every sample after the
    first such excursion, are not scored (no rate-independent model can know untrained relays, and
    relays an excursion switched stay switched); where that leaves fewer than 50 samples, every
@@ -62,6 +63,23 @@ LATER_SPLITS = (0.7, 0.8)
 #: 15 → 18 of 24, but effect top-1 44 → 40 of 54 — a 90 nm/min drift, two creeps and a coupling
 #: lost, their moved held-out parts 4–13 % scored — and distractors named 6 → 8).
 MIN_MOVED_SHARE = 0.25
+#: Where no split at the end holds out a part in trained relay states (a noise or step drive whose
+#: later part reaches states its earlier part never did), an interior block of this share of the
+#: samples is held out, the parts before and after it trained, starting at the first of
+#: :data:`BLOCK_STARTS` (at least a fifth of the record trained on each side, then widened to a
+#: tenth) that passes two tests on the drive alone: its voltage stays
+#: :data:`BLOCK_MARGIN` of the rest's range inside that range (a block holding the drive's maximum
+#: leaves the relays switched there untrained, and the training part after it carries them:
+#: spent 31003/18 fitted to 76×), and at least :data:`MIN_BLOCK_SHARE` of it is scored in trained
+#: states. Probe on the 14 null records of spent fresh seeds 29001–35003 whose split fell back
+#: (docs/diagnosis.md, "Held out where nothing was trained"): 10 get a block starting at 0.2–0.6,
+#: all 10 within 2× of the noise (0.9×–1.7×; they were at up to 109×); the trained-split nulls that
+#: would get one score alike (1.0×–1.5×). Widened, two more get one: 14× → 1.0× (32001/19, from
+#: 0.1) and 123× → 2.8× (32003/22, a generalised-PI stage, from 0.7; its training part 1.9×).
+BLOCK_LENGTH = 0.2
+BLOCK_STARTS = (0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.15, 0.65, 0.1, 0.7)
+BLOCK_MARGIN = 0.01
+MIN_BLOCK_SHARE = 0.3
 BASELINE_NAMES = {"preisach": "relay Preisach grid (asymmetric)", "bouc_wen": "Bouc–Wen law (Duhem class)",
                   "play": "fine play operators + cubic (asymmetric PI)", "symmetric": "play operators (symmetric PI)"}
 #: effects live at the drive's events (steps, turning points: gap-weighted blocks); creep with a resonance: each alone
@@ -118,14 +136,32 @@ def _training_part(n: int, fraction: float) -> np.ndarray:
     return np.arange(n) < int(round(fraction * n))
 
 
-def choose_split(rec: LoopRecord) -> tuple[float, str]:
-    """Training fraction of ``rec`` and the rule that chose it: :data:`TRAIN_FRACTION` (``"default"``)
-    unless its held-out part has too few samples in relay states the training part determines
-    (:meth:`.model.Design.scored` falls back from ``"trained_states"``); then the first of
-    :data:`LATER_SPLITS` whose held-out part is scored in trained states for at least
-    :data:`MIN_MOVED_SHARE` of its samples (``"moved_to_trained_states"``), else the default with
-    its fallback scoring (``"default_untrained"``). Only the drive decides (the relay states on the
-    default 32-level grid): the displacement, held out or not, is never looked at."""
+def _interior_block(rec: LoopRecord, start: float) -> np.ndarray:
+    """Held-out mask of the :data:`BLOCK_LENGTH` share of the record from ``start`` (shares of its samples)."""
+    k = np.arange(rec.n)
+    return (k >= int(round(start * rec.n))) & (k < int(round((start + BLOCK_LENGTH) * rec.n)))
+
+
+def _inside_rest(v_min: np.ndarray, v_max: np.ndarray, block: np.ndarray) -> bool:
+    """Whether the voltage within ``block`` stays :data:`BLOCK_MARGIN` of the rest's range inside it."""
+    lo, hi = float(v_min[~block].min()), float(v_max[~block].max())
+    margin = BLOCK_MARGIN * (hi - lo)
+    return bool(v_max[block].max() < hi - margin and v_min[block].min() > lo + margin)
+
+
+def choose_split(rec: LoopRecord) -> tuple[np.ndarray, str]:
+    """Training mask of ``rec`` (True: fitted; the rest is held out) and the rule that chose it.
+
+    The first :data:`TRAIN_FRACTION` of the samples (``"default"``) unless its held-out part has
+    too few samples in relay states the training part determines (:meth:`.model.Design.scored`
+    falls back from ``"trained_states"``); then the first of :data:`LATER_SPLITS` whose held-out
+    part is scored in trained states for at least :data:`MIN_MOVED_SHARE` of its samples
+    (``"moved_to_trained_states"``); then the first interior block of :data:`BLOCK_STARTS` whose
+    voltage stays inside the rest's range (:data:`BLOCK_MARGIN`) and which is scored in trained
+    states for at least :data:`MIN_BLOCK_SHARE` of its samples, the parts before and after it
+    trained (``"interior_block"``); else the default with its fallback scoring
+    (``"default_untrained"``). Only the drive decides (the relay states on the default 32-level
+    grid): the displacement, held out or not, is never looked at."""
     for fraction in (TRAIN_FRACTION, *LATER_SPLITS):
         train = _training_part(rec.n, fraction)
         probe = Design(rec.t, rec.v, rec.x, rec.y, train, n_levels=N_LEVELS, v_fine=rec.v_fine, family="preisach")
@@ -133,10 +169,19 @@ def choose_split(rec: LoopRecord) -> tuple[float, str]:
         if rule != "trained_states":
             continue
         if fraction == TRAIN_FRACTION:
-            return fraction, "default"
+            return train, "default"
         if scored.sum() >= MIN_MOVED_SHARE * (~train).sum():
-            return fraction, "moved_to_trained_states"
-    return TRAIN_FRACTION, "default_untrained"
+            return train, "moved_to_trained_states"
+    v_min, v_max = probe.v_min, probe.v_max  # voltage extremes within each sample (mask-independent)
+    for start in BLOCK_STARTS:
+        block = _interior_block(rec, start)
+        if not _inside_rest(v_min, v_max, block):
+            continue
+        probe = Design(rec.t, rec.v, rec.x, rec.y, ~block, n_levels=N_LEVELS, v_fine=rec.v_fine, family="preisach")
+        scored, rule = probe.scored()
+        if rule == "trained_states" and scored.sum() >= MIN_BLOCK_SHARE * block.sum():
+            return ~block, "interior_block"
+    return _training_part(rec.n, TRAIN_FRACTION), "default_untrained"
 
 
 @single_blas_thread
@@ -144,17 +189,18 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                     train_fraction: float | None = None, modelled=()) -> tuple[dict, str, dict]:
     """Diagnosis of a validated record; returns ``(report, summary, internals)``.
 
-    ``train_fraction``: share of the record's time fitted (the rest held out); ``None`` chooses it
-    from the drive (:func:`choose_split`). ``modelled``: effects the model already has (a scenario's
+    ``train_fraction``: share of the record's time fitted first (the rest held out); ``None`` chooses
+    the split from the drive (:func:`choose_split`: a share fitted first, or an interior block held
+    out). ``modelled``: effects the model already has (a scenario's
     stage switches); they are fitted with the baseline and are not candidates.
     """
     if baseline not in ("preisach", "symmetric"):
         raise ValueError(f"baseline must be 'preisach' or 'symmetric', got {baseline!r}")
     n = rec.n
-    split = "given"
     if train_fraction is None:
-        train_fraction, split = choose_split(rec)
-    train = _training_part(n, train_fraction)
+        train, split = choose_split(rec)
+    else:
+        train, split = _training_part(n, train_fraction), "given"
     d = Design(rec.t, rec.v, rec.x, rec.y, train, v_fine=rec.v_fine)
     held, scoring = d.scored()  # held-out samples beyond the trained voltage range are not scored
     if held.sum() < 50:
@@ -177,9 +223,9 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
     _read_untrained_split(outcome["unexplained"], split)
     report = {
         "record": {"source": rec.source, "samples": n, "sample_interval_s": rec.dt, "decimation": rec.decimation,
-                   "duration_s": float(rec.t[-1] - rec.t[0]), "train_fraction": train_fraction,
-                   "split": split,
-                   "heldout_from_s": float(rec.t[~train][0]),
+                   "duration_s": float(rec.t[-1] - rec.t[0]),
+                   "train_fraction": round(float(train.mean()), 3), "split": split,
+                   "heldout_from_s": float(rec.t[~train][0]), "heldout_to_s": float(rec.t[~train][-1]),
                    "heldout_scored_fraction": round(float(held.sum() / (~train).sum()), 4), "has_cross_axis": rec.y is not None},
         "status": outcome["status"],
         "baseline": {"model": BASELINE_NAMES[front.kind], "family": front.kind,
@@ -237,17 +283,19 @@ def _read_prior_dependence(unexplained: dict, spread_to_noise: float | None, fam
 
 def _read_untrained_split(unexplained: dict, split: str) -> None:
     """Read a held-out-only remainder as ``"untrained_states"`` where no split of the record holds
-    out a part in relay states its training part determines (:func:`choose_split` fell back to
-    ``"default_untrained"``, and every held-out sample before the first excursion is scored): the gap
+    out a part in relay states its training part determines, neither at the end nor inside the
+    record (:func:`choose_split` fell back to ``"default_untrained"``, and every held-out sample
+    before the first excursion is scored): the gap
     then measures how the baseline extrapolates into states it never saw — it neither shows a missing
     effect nor rules one out, and a drive that revisits its states would test it. Applied after
     :func:`_read_prior_dependence`: a remainder that the prior spread covers keeps that reading.
     Reporting only: no verdict or status changes.
 
     On the 168 null records of the spent fresh seeds 29001–35003 (docs/diagnosis.md, "Held out where
-    nothing was trained"; gaps as each set's method scored them) the split fell back on 14, all but
-    two under noise drives; 11 of them are above 2× the noise, at 3.7×–123×. Of the 154 with trained
-    held-out states 18 are above 2×, none beyond 4.2×: every larger null gap is one of these."""
+    nothing was trained"; gaps as each set's method scored them) the split at the end fell back on
+    14, all but two under noise drives; 11 of them were above 2× the noise, at 3.7×–123×. Of the 154
+    with trained held-out states 18 are above 2×, none beyond 4.2×: every larger null gap was one of
+    these. With the interior block (:data:`BLOCK_STARTS`) one of the 14 still falls back (0.97×)."""
     if unexplained.get("reading") == "heldout_only" and split == "default_untrained":
         unexplained["reading"] = "untrained_states"
 
@@ -275,6 +323,11 @@ def loop_summary(rep: dict) -> str:
         moved, default = 100 * rep["record"]["train_fraction"], 100 * TRAIN_FRACTION
         lines.append(f"Split: the first {moved:.0f} % of the record is fitted, not {default:.0f} %: after "
                      f"{default:.0f} % too few held-out samples are in relay states that the training part determines.")
+    if rep["record"].get("split") == "interior_block":
+        r = rep["record"]
+        lines.append(f"Split: the part from {r['heldout_from_s']:.3g} s to {r['heldout_to_s']:.3g} s is held out and the "
+                     "parts before and after it fitted: no split at the end holds out a part in relay states that the "
+                     "training part determines.")
     if b["heldout_scoring"] in UNTRAINED_SCORING:
         lines.append(f"Held-out scoring ({b['heldout_scoring']}): too few held-out samples are in relay states that the "
                      "training part determines, so the gap includes the model's extrapolation to states whose weights "
