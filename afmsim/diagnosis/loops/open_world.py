@@ -123,8 +123,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: dynamics search sped up, verdicts unchanged and fitted values equal to the last bits (415bbc8);
 #: 35001–35003 a third time for that method, its Bouc–Wen search's matrix built once (aae6acc: the same
 #: numbers, reports identical on spent records); the untrained_states reading of the remainder came after
-#: that run (83b6dfd: reporting only, prompted by two of its nulls).
-FRESH_SEEDS = (35001, 35002, 35003)
+#: that run (83b6dfd: reporting only, prompted by two of its nulls); 36001–36003 first for the
+#: interior held-out block where no split at the end holds out trained states (41e15a4; prompted by
+#: 35001–35003's nulls, measured on spent records of 29001–35003).
+FRESH_SEEDS = (36001, 36002, 36003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
