@@ -162,26 +162,27 @@ def choose_split(rec: LoopRecord) -> tuple[np.ndarray, str]:
     trained (``"interior_block"``); else the default with its fallback scoring
     (``"default_untrained"``). Only the drive decides (the relay states on the default 32-level
     grid): the displacement, held out or not, is never looked at."""
+    def probe(train: np.ndarray) -> Design:
+        return Design(rec.t, rec.v, rec.x, rec.y, train, n_levels=N_LEVELS, v_fine=rec.v_fine, family="preisach")
+
+    default = probe(_training_part(rec.n, TRAIN_FRACTION))
     for fraction in (TRAIN_FRACTION, *LATER_SPLITS):
-        train = _training_part(rec.n, fraction)
-        probe = Design(rec.t, rec.v, rec.x, rec.y, train, n_levels=N_LEVELS, v_fine=rec.v_fine, family="preisach")
-        scored, rule = probe.scored()
+        d = default if fraction == TRAIN_FRACTION else probe(_training_part(rec.n, fraction))
+        scored, rule = d.scored()
         if rule != "trained_states":
             continue
         if fraction == TRAIN_FRACTION:
-            return train, "default"
-        if scored.sum() >= MIN_MOVED_SHARE * (~train).sum():
-            return train, "moved_to_trained_states"
-    v_min, v_max = probe.v_min, probe.v_max  # voltage extremes within each sample (mask-independent)
+            return d.train, "default"
+        if scored.sum() >= MIN_MOVED_SHARE * (~d.train).sum():
+            return d.train, "moved_to_trained_states"
     for start in BLOCK_STARTS:
         block = _interior_block(rec, start)
-        if not _inside_rest(v_min, v_max, block):
+        if not _inside_rest(default.v_min, default.v_max, block):  # per-sample extremes: mask-independent
             continue
-        probe = Design(rec.t, rec.v, rec.x, rec.y, ~block, n_levels=N_LEVELS, v_fine=rec.v_fine, family="preisach")
-        scored, rule = probe.scored()
+        scored, rule = probe(~block).scored()
         if rule == "trained_states" and scored.sum() >= MIN_BLOCK_SHARE * block.sum():
             return ~block, "interior_block"
-    return _training_part(rec.n, TRAIN_FRACTION), "default_untrained"
+    return default.train, "default_untrained"
 
 
 @single_blas_thread
