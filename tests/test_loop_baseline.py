@@ -691,7 +691,7 @@ def test_an_interior_block_tests_the_baseline_where_no_split_at_the_end_can():
 
 
 def test_a_tenth_long_block_tests_the_baseline_where_no_fifth_can(monkeypatch):
-    """Spent fresh seed 37003, null 18 (afmsim's own stage under a noise drive): no split at the
+    """Spent fresh seed 37003, null 18 (afmsim's own stage under a step drive): no split at the
     end and no block a fifth of the record long holds out a part in trained relay states — with
     fifths only the split falls back (``default_untrained``; the benchmark read 18.5× there). A
     block a tenth long, with more of the drive's excursions left to train on, is scored in trained
@@ -699,7 +699,7 @@ def test_a_tenth_long_block_tests_the_baseline_where_no_fifth_can(monkeypatch):
     from afmsim.diagnosis.loops import attribute
 
     case = make_case(case_plan()[18], np.random.default_rng([37003, 18]))
-    assert case_plan()[18].category == "null"
+    assert case_plan()[18].category == "null" and case["excitation"] == "steps"
     rec = load_record(case["columns"])
     monkeypatch.setattr(attribute, "BLOCK_LENGTHS", (0.2,))
     assert choose_split(rec)[1] == "default_untrained"
