@@ -126,8 +126,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: that run (83b6dfd: reporting only, prompted by two of its nulls); 36001–36003 first for the
 #: interior held-out block where no split at the end holds out trained states (41e15a4; prompted by
 #: 35001–35003's nulls, measured on spent records of 29001–35003); 37001–37003 again for that
-#: method, unchanged (more evidence on the interior block; only docs since 36001–36003's run).
-FRESH_SEEDS = (37001, 37002, 37003)
+#: method, unchanged (more evidence on the interior block; only docs since 36001–36003's run);
+#: 38001–38003 first for a block a tenth long where no fifth is scored in trained states (b94ebf5;
+#: prompted by 37001–37003's two largest null gaps, measured on spent records of 29001–37003).
+FRESH_SEEDS = (38001, 38002, 38003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
