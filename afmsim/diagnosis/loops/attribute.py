@@ -32,6 +32,7 @@ Protocol of :func:`diagnose_loops`:
 
 from __future__ import annotations
 
+from itertools import product
 from pathlib import Path
 
 import numpy as np
@@ -65,9 +66,9 @@ LATER_SPLITS = (0.7, 0.8)
 MIN_MOVED_SHARE = 0.25
 #: Where no split at the end holds out a part in trained relay states (a noise or step drive whose
 #: later part reaches states its earlier part never did), an interior block (a share of the
-#: samples from :data:`BLOCK_LENGTHS`) is held out, the parts before and after it trained, starting at the first of
-#: :data:`BLOCK_STARTS` (at least a fifth of the record trained on each side, then widened to a
-#: tenth) that passes two tests on the drive alone: its voltage stays
+#: samples from :data:`BLOCK_LENGTHS`) is held out, the parts before and after it trained,
+#: starting at the first of :data:`BLOCK_STARTS` (at least a fifth of the record trained on each
+#: side, then widened to a tenth) that passes two tests on the drive alone: its voltage stays
 #: :data:`BLOCK_MARGIN` of the rest's range inside that range (a block holding the drive's maximum
 #: leaves the relays switched there untrained, and the training part after it carries them:
 #: spent 31003/18 fitted to 76×), and at least :data:`MIN_BLOCK_SHARE` of it is scored in trained
@@ -164,8 +165,9 @@ def choose_split(rec: LoopRecord) -> tuple[np.ndarray, str]:
     part is scored in trained states for at least :data:`MIN_MOVED_SHARE` of its samples
     (``"moved_to_trained_states"``); then the first interior block (each of :data:`BLOCK_LENGTHS`
     in turn, from each of :data:`BLOCK_STARTS`) whose voltage stays inside the rest's range
-    (:data:`BLOCK_MARGIN`) and which is scored in trained states for at least :data:`MIN_BLOCK_SHARE` of its samples, the parts before and after it
-    trained (``"interior_block"``); else the default with its fallback scoring
+    (:data:`BLOCK_MARGIN`) and which is scored in trained states for at least
+    :data:`MIN_BLOCK_SHARE` of its samples, the parts before and after it trained
+    (``"interior_block"``); else the default with its fallback scoring
     (``"default_untrained"``). Only the drive decides (the relay states on the default 32-level
     grid): the displacement, held out or not, is never looked at."""
     def probe(train: np.ndarray) -> Design:
@@ -181,7 +183,7 @@ def choose_split(rec: LoopRecord) -> tuple[np.ndarray, str]:
             return d.train, "default"
         if scored.sum() >= MIN_MOVED_SHARE * (~d.train).sum():
             return d.train, "moved_to_trained_states"
-    for length, start in ((length, start) for length in BLOCK_LENGTHS for start in BLOCK_STARTS):
+    for length, start in product(BLOCK_LENGTHS, BLOCK_STARTS):
         block = _interior_block(rec, start, length)
         if not _inside_rest(default.v_min, default.v_max, block):  # per-sample extremes: mask-independent
             continue
