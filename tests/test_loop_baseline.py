@@ -514,8 +514,8 @@ def test_a_creep_in_the_record_does_not_pick_the_family_that_absorbs_it(seed_cas
 def test_with_effects_the_bouc_wen_shape_is_refitted_jointly_with_them():
     """A 2.8 %/decade creep on a Bouc–Wen stage under steps (open-world development seed 1, case 7),
     fitted with the law: the baseline's shape, fitted with the creep still in the record, absorbs
-    part of it (the creep fit on it shrinks the held-out gap by 23 %); refitted jointly with the
-    creep bank, by more than half (63 %)."""
+    part of it (the creep fit on it shrinks the held-out gap by 53 %, two relaxations per decade);
+    refitted jointly with the creep bank, by 98 % (one per decade: 25 % and 87 %)."""
     spec = case_plan()[7]
     assert spec.category == "effect" and [name for name, _ in spec.effects] == ["creep"]
     case = make_case(spec, np.random.default_rng([1, 7]))
@@ -532,8 +532,8 @@ def test_with_effects_the_bouc_wen_shape_is_refitted_jointly_with_them():
     baseline = gap(fit_model(d, ModelSpec(kind="bouc_wen")))
     with_baseline_shape = gap(_fit_columns(d, creep, d.hyst("bouc_wen"))[0])
     joint = gap(fit_model(d, creep))
-    assert with_baseline_shape > 0.6 * baseline
-    assert joint < 0.5 * baseline
+    assert with_baseline_shape > 0.4 * baseline
+    assert joint < 0.2 * with_baseline_shape
 
 
 def test_a_gap_scored_in_untrained_relay_states_says_so():

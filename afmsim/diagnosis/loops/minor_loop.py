@@ -207,7 +207,8 @@ def minor_loop_law(t, v, x, train, sigma: float) -> dict:
     dt = float((t[-1] - t[0]) / (t.size - 1))
     vc = np.clip(v, lo, hi)
     vn = (vc - 0.5 * (lo + hi)) / span
-    creep = _creep_columns(vn, creep_taus(dt, float(t[train].max() - t[0])), dt)
+    # one relaxation per decade: the law compares two loop families beside a creep, it does not forecast one
+    creep = _creep_columns(vn, creep_taus(dt, float(t[train].max() - t[0]), per_decade=1), dt)
     free = np.column_stack([np.ones_like(v), vn, creep])
     relays = drive_polarity(v, x, train) * np.hstack([relay_features(vc, lo, hi, N_LEVELS), latched_relays(vc, lo, hi)])
     preisach = _predict(free, relays, x, train)

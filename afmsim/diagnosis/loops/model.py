@@ -33,7 +33,7 @@ jointly with the effect):
 * ``drift`` — ``+ a1·(t − t0) + a2·(t − t0)²`` (2 parameters: a slow drift with curvature, e.g.
   warm-up); reported as its least-squares rate over the training part.
 * ``creep`` — a bank of first-order relaxations of the hysteresis output,
-  ``x = H + Σ c_k LP_τk(H)``, c_k ≥ 0, τ_k log-spaced (about 1/decade) from ``max(0.02 s, 5 dt)``
+  ``x = H + Σ c_k LP_τk(H)``, c_k ≥ 0, τ_k log-spaced (about :data:`CREEP_PER_DECADE` per decade) from ``max(0.02 s, 5 dt)``
   to :data:`CREEP_SPAN_FACTOR` × the training span; alternated three times with the hysteresis
   refit (bilinear). Reported as γ, the normalised log-slope of its step response per decade
   between ``t1 = max(0.1 s, 10 dt)`` and ``t2 = T_train/4``.
@@ -107,6 +107,16 @@ N_LEVELS = 32
 #: relaxations steered the family choice, named creep on drift records (docs/diagnosis.md): not
 #: taken then.
 CREEP_SPAN_FACTOR = 10.0
+#: Relaxation times per decade of the creep bank (:func:`creep_taus`). With one per decade (the rule
+#: until 2026-12-06) a stretched-exponential creep — a broad spectrum of relaxation times — was
+#: followed on the training part and mis-forecast after a late step: 2 %/decade on a scattered-Preisach
+#: stage under steps (spent 38003/6) went from 36.8× to 3.3× the noise on the training part but only
+#: from 68.5× to 38× held out, nothing named; with two per decade 0.98× and 1.3×, creep named. On all
+#: 306 spent records of 36001–38003 rediagnosed (docs/diagnosis.md, "Two relaxation times per
+#: decade"): effect top-1 122 → 126 and exact set 101 → 109 of 162, 21 creep records `explained`
+#: that were not, nulls and distractors named unchanged (0 and 19 of 72). Three per decade gave
+#: 38003/6 no more (1.16×) for three more parameters.
+CREEP_PER_DECADE = 2
 #: Relay-grid size on which the dynamics candidate's lag and resonance are searched (:func:`fit_model`)
 #: when the record's grid is finer (the baseline's former default); the chosen lag is then fitted on
 #: the record's grid. The search's dozens of refits dominate a diagnosis, and their cost grows with
@@ -406,12 +416,14 @@ def dynamics_filters(lag, dt: float) -> list:
     return filters + ([resonance_filter(*mode, dt)] if mode is not None else [])
 
 
-def creep_taus(dt: float, span: float) -> np.ndarray:
-    """Time constants (s) of the creep bank: about one per decade from max(0.02 s, 5 dt) to
-    :data:`CREEP_SPAN_FACTOR` × the training span."""
+def creep_taus(dt: float, span: float, per_decade: int | None = None) -> np.ndarray:
+    """Time constants (s) of the creep bank: about ``per_decade`` (default :data:`CREEP_PER_DECADE`)
+    per decade — the whole decades between the ends times ``per_decade``, plus one — from
+    max(0.02 s, 5 dt) to :data:`CREEP_SPAN_FACTOR` × the training span."""
+    per_decade = CREEP_PER_DECADE if per_decade is None else per_decade
     lo = max(0.02, 5 * dt)
     hi = max(CREEP_SPAN_FACTOR * span, 2 * lo)
-    n = int(np.floor(np.log10(hi / lo))) + 1
+    n = per_decade * int(np.floor(np.log10(hi / lo))) + 1
     return np.logspace(np.log10(lo), np.log10(hi), max(n, 2))
 
 
