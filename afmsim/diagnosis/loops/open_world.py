@@ -128,8 +128,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: 35001–35003's nulls, measured on spent records of 29001–35003); 37001–37003 again for that
 #: method, unchanged (more evidence on the interior block; only docs since 36001–36003's run);
 #: 38001–38003 first for a block a tenth long where no fifth is scored in trained states (b94ebf5;
-#: prompted by 37001–37003's two largest null gaps, measured on spent records of 29001–37003).
-FRESH_SEEDS = (38001, 38002, 38003)
+#: prompted by 37001–37003's two largest null gaps, measured on spent records of 29001–37003);
+#: 39001–39003 first for two relaxation times per decade in the creep bank (042b429; prompted by
+#: 38003/6, measured on spent records of 36001–38003).
+FRESH_SEEDS = (39001, 39002, 39003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
