@@ -41,7 +41,7 @@ def test_a_creep_still_rising_at_the_records_end_is_followed_by_the_slower_bank(
     at the 14 s training span settles while the stage still creeps. With one relaxation per decade
     (the rule when the reach was set) the bank to 10 spans leaves a held-out gap at least a third
     smaller (17.5× against 34× the 3 nm noise); with two per decade both gaps are far smaller
-    (4.2× and 5.4×) and the reach still takes a tenth off."""
+    (4.2× and 5.4×) and the reach still takes at least a tenth off (a fifth)."""
     t, v, x, train = _stage_record(4)
     h = AsymmetricPreisach().apply(v)
 

@@ -33,9 +33,9 @@ jointly with the effect):
 * ``drift`` — ``+ a1·(t − t0) + a2·(t − t0)²`` (2 parameters: a slow drift with curvature, e.g.
   warm-up); reported as its least-squares rate over the training part.
 * ``creep`` — a bank of first-order relaxations of the hysteresis output,
-  ``x = H + Σ c_k LP_τk(H)``, c_k ≥ 0, τ_k log-spaced (about :data:`CREEP_PER_DECADE` per decade) from ``max(0.02 s, 5 dt)``
-  to :data:`CREEP_SPAN_FACTOR` × the training span; alternated three times with the hysteresis
-  refit (bilinear). Reported as γ, the normalised log-slope of its step response per decade
+  ``x = H + Σ c_k LP_τk(H)``, c_k ≥ 0, τ_k log-spaced (about :data:`CREEP_PER_DECADE` per decade)
+  from ``max(0.02 s, 5 dt)`` to :data:`CREEP_SPAN_FACTOR` × the training span; alternated three
+  times with the hysteresis refit (bilinear). Reported as γ, the normalised log-slope of its step response per decade
   between ``t1 = max(0.1 s, 10 dt)`` and ``t2 = T_train/4``.
 * ``dynamics`` — first-order lag ``1/(τ s + 1)`` on the hysteresis(+creep) output, discretised
   either by Tustin (the record is a sampled smooth signal) or by a zero-order hold (half a sample
