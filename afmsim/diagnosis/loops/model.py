@@ -35,8 +35,8 @@ jointly with the effect):
 * ``creep`` — a bank of first-order relaxations of the hysteresis output,
   ``x = H + Σ c_k LP_τk(H)``, c_k ≥ 0, τ_k log-spaced (about :data:`CREEP_PER_DECADE` per decade)
   from ``max(0.02 s, 5 dt)`` to :data:`CREEP_SPAN_FACTOR` × the training span; alternated three
-  times with the hysteresis refit (bilinear). Reported as γ, the normalised log-slope of its step response per decade
-  between ``t1 = max(0.1 s, 10 dt)`` and ``t2 = T_train/4``.
+  times with the hysteresis refit (bilinear). Reported as γ, the normalised log-slope of its step
+  response per decade between ``t1 = max(0.1 s, 10 dt)`` and ``t2 = T_train/4``.
 * ``dynamics`` — first-order lag ``1/(τ s + 1)`` on the hysteresis(+creep) output, discretised
   either by Tustin (the record is a sampled smooth signal) or by a zero-order hold (half a sample
   more delay: what a lag shorter than one sample looks like after a voltage step); τ and the
