@@ -138,3 +138,52 @@ def test_a_search_on_the_samples_up_to_the_last_training_one_fits_as_the_whole_r
     np.testing.assert_allclose(wf_prefix, wf_whole, rtol=1e-9, atol=1e-12 * np.abs(wf_whole).max())
     np.testing.assert_allclose(wp_prefix, wp_whole, rtol=1e-9, atol=1e-12 * np.abs(wp_whole).max())
     np.testing.assert_allclose(p_prefix, p_whole[train], rtol=0, atol=1e-12 * np.ptp(x))
+
+
+def _triangles_of_mixed_rates(rng, duration=1.2):
+    """Triangles from 0 V of random peaks (3–9.5 V) at 5, 10, 20 or 40 Hz one after another: the
+    drive's rate varies, so a pole in front of the stack loses a different share of each peak."""
+    t = np.arange(int(duration * FS)) / FS
+    v = np.zeros(t.size)
+    k = int(0.05 * FS)
+    while k < t.size:
+        peak, m = rng.uniform(3.0, 9.5), int(round(FS / rng.choice([5.0, 10.0, 20.0, 40.0])))
+        v[k:k + m] = (peak * (1.0 - np.abs(1.0 - 2.0 * np.arange(m) / m)))[: t.size - k]
+        k += m
+    return t, v
+
+
+def _driven_through_pole(seed, pole_hz):
+    """Mixed-rate triangles on afmsim's stage whose *drive* passes a high-voltage amplifier pole
+    (bilinear, another code path than the candidate's Tustin lag) that the recorded voltage does not
+    show: the pole rounds the reversals before the hysteresis and keeps the stack from the recorded
+    peaks (the more, the faster the triangle), which no filter of the stage's output reproduces."""
+    rng = np.random.default_rng(seed)
+    t, v = _triangles_of_mixed_rates(rng)
+    w = _warped(pole_hz)
+    axis = _plant()
+    x = axis.static_displacement(axis.drive(t, _through([w], [1.0, w], v)))
+    return {"t_s": t, "v_V": v, "x_m": x + 10e-9 * rng.standard_normal(t.size)}
+
+
+def test_an_amplifier_pole_in_front_of_the_stack_is_placed_at_the_drive():
+    rep, summary = diagnose_loops(_driven_through_pole(21, 60.0))
+    assert rep["verdict"][:1] == ["dynamics"], summary
+    params = {e["name"]: e for e in rep["effects"]}["dynamics"]["params"]
+    assert params["place"] == "drive"
+    assert params["lag_time_constant_s"] == pytest.approx(1 / (2 * np.pi * 60.0), rel=0.2)
+    assert rep["status"] == "explained", summary
+
+
+def test_a_lag_after_the_stack_stays_at_the_output():
+    """The same pole on the stage's displacement (a slow sensor or stage, not the drive)."""
+    rng = np.random.default_rng(22)
+    t, v = _triangles_of_mixed_rates(rng)
+    axis = _plant()
+    w = _warped(60.0)
+    x = _through([w], [1.0, w], axis.static_displacement(axis.drive(t, v)))
+    cols = {"t_s": t, "v_V": v, "x_m": x + 10e-9 * rng.standard_normal(t.size)}
+    rep, summary = diagnose_loops(cols)
+    params = {e["name"]: e for e in rep["effects"]}["dynamics"]["params"]
+    assert rep["verdict"][:1] == ["dynamics"], summary
+    assert params["place"] == "output"

@@ -31,7 +31,9 @@ Candidate effects (each fitted on the training part only; the hysteresis weights
 jointly with the effect):
 
 * ``drift`` — ``+ a1·(t − t0) + a2·(t − t0)²`` (2 parameters: a slow drift with curvature, e.g.
-  warm-up); reported as its least-squares rate over the training part.
+  warm-up), the parabola continued at its final slope beyond the last training sample
+  (:func:`drift_curvature_column`: a drift's curvature is fitted, not extrapolated); reported as its
+  least-squares rate over the training part.
 * ``creep`` — a bank of first-order relaxations of the hysteresis output,
   ``x = H + Σ c_k LP_τk(H)``, c_k ≥ 0, τ_k log-spaced (about :data:`CREEP_PER_DECADE` per decade)
   from ``max(0.02 s, 5 dt)`` to :data:`CREEP_SPAN_FACTOR` × the training span; alternated three
@@ -51,9 +53,18 @@ jointly with the effect):
   again and the mode refined once more under it; kept only when the training BIC on decorrelated
   samples improves by > 6 with its 2 extra parameters):
   what a stage's first mechanical mode does after every step or triangle corner (it rings, which
-  no first-order lag can). Reported as the low-frequency delay (τ + 2ζ/ω0, comparable with a
-  plant's 1/ω_a + 2ζ/ω_0), the discretisation, and ``resonance_hz`` / ``damping_ratio`` when the
-  resonance is kept.
+  no first-order lag can). On the relay grid the lag is also tried in front of the hysteresis
+  (``place="drive"``: the relays driven by the lagged voltage, :meth:`Design.lagged_drive_columns`
+  — a high-voltage amplifier's pole, which rounds the reversals and keeps the stack from the
+  recorded peaks, the more the faster the drive, which no filter of the output reproduces): τ on
+  a grid of the same spacing from one sample up, then Brent's search between the best point's neighbours (the minimum is sharp),
+  then the same resonance step (τ not searched again); this place is kept only where its training
+  BIC beats the output place's complete model by more than 6 (the same decorrelated samples, 2
+  parameters per resonance). Choosing the place by the lag alone, before the resonance, took the
+  drive on three spent records whose poles the output lag with its resonance had explained
+  (docs/diagnosis.md). Reported as the low-frequency delay (τ + 2ζ/ω0, comparable with a
+  plant's 1/ω_a + 2ζ/ω_0), the discretisation, the lag's ``place`` (``"output"`` or ``"drive"``),
+  and ``resonance_hz`` / ``damping_ratio`` when the resonance is kept.
 * ``cross_coupling`` — ``+ c·y_m`` (only with a ``y_m`` column).
 * ``asymmetry`` — (only for the symmetric baseline) ``+ q2·v² + q3·v³ + Σ e_k·v·P_k(v)``: an even
   mean curve and loop widths that vary along the travel (2 + N_PLAY free terms).
@@ -66,7 +77,7 @@ from functools import cached_property
 
 import numpy as np
 from numba import njit
-from scipy.optimize import minimize, nnls
+from scipy.optimize import minimize, minimize_scalar, nnls
 from scipy.linalg import solve_triangular
 from scipy.signal import cont2discrete, lfilter_zi
 
@@ -416,6 +427,18 @@ def dynamics_filters(lag, dt: float) -> list:
     return filters + ([resonance_filter(*mode, dt)] if mode is not None else [])
 
 
+def drift_curvature_column(tn: np.ndarray, train: np.ndarray) -> np.ndarray:
+    """The ``drift`` candidate's curvature column at normalised times ``tn`` (0–1 over the record):
+    ``tn²`` up to the last training sample ``te``, continued beyond it at its final slope
+    (``te² + 2·te·(tn − te)``). A drift's curvature is fitted, not extrapolated: a warm-up decelerates
+    and a random walk turns, where a parabola carried over the held-out 40 % runs away (spent seed
+    36001 case 2, a 40 nm/min walk: held-out shrink −422 % with the parabola, −224 % continued at its
+    final slope; 36003/2, another walk: +22 %, not significant → +35 %, drift named). Held-out
+    samples between training ones (an interior block) keep the parabola."""
+    te = float(tn[np.flatnonzero(train)[-1]])
+    return np.where(tn <= te, tn**2, te**2 + 2 * te * (tn - te))
+
+
 def creep_taus(dt: float, span: float, per_decade: int | None = None) -> np.ndarray:
     """Time constants (s) of the creep bank: about ``per_decade`` (default :data:`CREEP_PER_DECADE`)
     per decade — the whole decades between the ends times ``per_decade``, plus one — from
@@ -652,6 +675,22 @@ class Design:
         (:attr:`polarity`, :func:`drive_polarity`)."""
         pad = (self.v_hi - self.v_lo) / n_levels
         return self.polarity * relay_features(self.vc, self.v_lo - pad, self.v_hi, n_levels + 1, self.block)
+
+    def lagged_drive_columns(self, tau: float, n_levels: int) -> np.ndarray:
+        """Offset, linear term and relay states (on the grid of :meth:`relays`) of the drive passed
+        through a first-order lag of time constant ``tau`` (s; :func:`dynamics_lag_filter` at the
+        full rate) — a high-voltage amplifier's pole in front of the stack, which the
+        ``dynamics`` candidate's ``"drive"`` place fits (:func:`fit_model`). The lag rounds the
+        drive's reversals before the hysteresis sees them and can keep it from reaching the
+        recorded extremes (relays there never switch), which no filter of the hysteresis output
+        reproduces."""
+        b, a = dynamics_lag_filter(tau, self.dt / self.block)
+        lagged = _filt(b, a, self.fine[:, None])
+        pad = (self.v_hi - self.v_lo) / n_levels
+        relays = relay_features(np.clip(lagged[:, 0], self.v_lo, self.v_hi), self.v_lo - pad, self.v_hi,
+                                n_levels + 1, self.block)
+        vn = (block_means(lagged, self.block)[:, 0] - 0.5 * (self.v_lo + self.v_hi)) / (self.v_hi - self.v_lo)
+        return np.hstack([np.column_stack([np.ones_like(vn), vn]), self.polarity * relays])
 
     @cached_property
     def grid_prior_fits(self) -> dict:
@@ -996,7 +1035,7 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
     names = []
     if "drift" in eff:
         tn = (d.t - d.t[0]) / (d.t[-1] - d.t[0])
-        extra += [tn, tn**2]
+        extra += [tn, drift_curvature_column(tn, d.train)]
         names += ["drift", "drift_curvature"]
     if "asymmetry" in eff and kind == "symmetric":
         # position-dependent loop shape: even/odd polynomial terms and loop widths modulated by v
@@ -1044,26 +1083,76 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
                         best = (error, (discretisation, tau, mode))
             return best
 
-        error_lag, lag = best_lag(None)
-        lag_prediction = search(lag)[0]
-        estimate = estimate_resonance(search.x, lag_prediction, search.train, d.dt)
-        if estimate is not None:
+        def with_resonance(fits, lag, error_lag, retune):
+            """(training error, lag, n_eff) after the resonance step on ``fits`` (kept only where
+            the training BIC asks for it); ``retune``: search τ again under the mode."""
+            def error_of(candidate):
+                return float(np.mean((fits(candidate)[0] - fits.x)[fits.train] ** 2))
+
+            prediction = fits(lag)[0]
+            n_eff = max(int(d.train.sum()) / decorrelation_length((fits.x - prediction)[fits.train]), 5.0)
+            estimate = estimate_resonance(fits.x, prediction, fits.train, d.dt)
+            if estimate is None:
+                return error_lag, lag, n_eff
             f0, zeta = estimate
             modes = [(f0 * (1 + zeta * step), zeta * factor) for step in RESONANCE_F0_STEPS
                      for factor in RESONANCE_ZETA_FACTORS]
-            errors = [train_error((lag[0], lag[1], mode)) for mode in modes]
-            mode, _ = refine_mode(lambda m: train_error((lag[0], lag[1], m)), modes[int(np.argmin(errors))], d.dt)
-            error_mode, lag_mode = best_lag(mode, (lag[0],))
-            if lag_mode[1] != lag[1]:  # the mode again under the lag found with it
-                mode, error = refine_mode(lambda m: train_error((lag_mode[0], lag_mode[1], m)), mode, d.dt)
-                if error < error_mode:
-                    error_mode, lag_mode = error, (lag_mode[0], lag_mode[1], mode)
-            n_eff = max(int(d.train.sum()) / decorrelation_length((search.x - lag_prediction)[search.train]), 5.0)
+            errors = [error_of((lag[0], lag[1], mode)) for mode in modes]
+            mode, error_mode = refine_mode(lambda m: error_of((lag[0], lag[1], m)), modes[int(np.argmin(errors))],
+                                           d.dt)
+            lag_mode = (lag[0], lag[1], mode)
+            if retune:
+                error_mode, lag_mode = best_lag(mode, (lag[0],))
+                if lag_mode[1] != lag[1]:  # the mode again under the lag found with it
+                    mode, error = refine_mode(lambda m: error_of((lag_mode[0], lag_mode[1], m)), mode, d.dt)
+                    if error < error_mode:
+                        error_mode, lag_mode = error, (lag_mode[0], lag_mode[1], mode)
             if n_eff * np.log(error_mode / error_lag) + 2 * np.log(n_eff) < -RESONANCE_BIC:
-                lag = lag_mode
+                return error_mode, lag_mode, n_eff
+            return error_lag, lag, n_eff
+
+        error_out, lag, n_eff = with_resonance(search, *best_lag(None)[::-1], retune=True)
+        place, tau_drive = "output", 0.0
+        if kind == "preisach":
+            # the lag in front of the hysteresis instead (an amplifier pole): same grid, one τ,
+            # then its own resonance step; kept only where its training BIC beats the output place's
+            levels = SEARCH_LEVELS if coarse else d.n_levels
+
+            def drive_fits(tau, n_levels, rows=None):
+                return _LagFits(d, d.lagged_drive_columns(tau, n_levels), relay_curvature(n_levels + 1), n_free_h,
+                                extra, creep="creep" in eff, rows=rows)
+
+            drive_errors = {}
+
+            def try_drive(tau):
+                if tau not in drive_errors:
+                    fits = drive_fits(tau, levels, search.x.size)
+                    drive_errors[tau] = (float(np.mean((fits(None)[0] - fits.x)[fits.train] ** 2)), fits)
+                return drive_errors[tau][0]
+
+            # from one sample up: a shorter lag rounds no reversal that the record resolves, and in
+            # front of the stack it reads a loop that widens with the drive rate as a lag (spent
+            # 39003/33, a rate-dependent width under steps at 500 Hz: 0.07 sample, `explained`)
+            grid = [float(tau) for tau in np.geomspace(d.dt, max(0.02, 3 * d.dt), 14)]
+            for tau in grid:
+                try_drive(tau)
+            k = grid.index(min(grid, key=lambda tau: drive_errors[tau][0]))
+            # the training error's minimum in τ is sharp (a pole that keeps the stack from the drive's
+            # peaks misfits every peak where τ is 10 % off): Brent's search on log τ between the
+            # grid neighbours of the best grid point
+            minimize_scalar(lambda log_tau: try_drive(float(np.exp(log_tau))),
+                            bounds=(np.log(grid[max(k - 1, 0)]), np.log(grid[min(k + 1, len(grid) - 1)])),
+                            method="bounded", options={"xatol": 1e-3})
+            tau_best = min(drive_errors, key=lambda tau: drive_errors[tau][0])
+            error_drive, lag_drive, _ = with_resonance(drive_errors[tau_best][1], ("tustin", 0.0, None),
+                                                       drive_errors[tau_best][0], retune=False)
+            extra_modes = (lag_drive[2] is not None) - (lag[2] is not None)
+            if n_eff * np.log(error_drive / error_out) + 2 * extra_modes * np.log(n_eff) < -RESONANCE_BIC:
+                place, tau_drive, lag = "drive", tau_best, lag_drive
+                fitted = drive_fits(tau_best, d.n_levels)
         discretisation, tau, mode = lag
-        delay = lag_delay(discretisation, tau, d.dt)
-        params["dynamics"] = {"discretisation": discretisation}
+        delay = lag_delay(discretisation, tau, d.dt) + tau_drive
+        params["dynamics"] = {"discretisation": discretisation, "place": place}
         n_params += 2  # τ and the discretisation
         if mode is not None:
             f0, zeta = mode
