@@ -130,8 +130,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: 38001–38003 first for a block a tenth long where no fifth is scored in trained states (b94ebf5;
 #: prompted by 37001–37003's two largest null gaps, measured on spent records of 29001–37003);
 #: 39001–39003 first for two relaxation times per decade in the creep bank (042b429; prompted by
-#: 38003/6, measured on spent records of 36001–38003).
-FRESH_SEEDS = (39001, 39002, 39003)
+#: 38003/6, measured on spent records of 36001–38003); 40001–40003 first for the dynamics lag in front
+#: of the stack and the drift's parabola continued at its final slope (d8947be; prompted by 39003/15
+#: and the random walks of 36001–39003, measured on spent records of 36001–39003).
+FRESH_SEEDS = (40001, 40002, 40003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
