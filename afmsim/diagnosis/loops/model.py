@@ -1114,8 +1114,8 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
         error_out, lag, n_eff = with_resonance(search, *best_lag(None)[::-1], retune=True)
         place, tau_drive = "output", 0.0
         if kind == "preisach":
-            # the lag in front of the hysteresis instead (an amplifier pole): same grid, one τ,
-            # then its own resonance step; kept only where its training BIC beats the output place's
+            # the lag in front of the hysteresis instead (an amplifier pole): its own τ search and
+            # resonance step; kept only where its training BIC beats the output place's whole model
             levels = SEARCH_LEVELS if coarse else d.n_levels
 
             def drive_fits(tau, n_levels, rows=None):
