@@ -57,10 +57,10 @@ jointly with the effect):
   (``place="drive"``: the relays driven by the lagged voltage, :meth:`Design.lagged_drive_columns`
   — a high-voltage amplifier's pole, which rounds the reversals and keeps the stack from the
   recorded peaks, the more the faster the drive, which no filter of the output reproduces): τ on
-  a grid of the same spacing from one sample up, then Brent's search between the best point's neighbours (the minimum is sharp),
-  then the same resonance step (τ not searched again); this place is kept only where its training
-  BIC beats the output place's complete model by more than 6 (the same decorrelated samples, 2
-  parameters per resonance). Choosing the place by the lag alone, before the resonance, took the
+  a grid of the same spacing from one sample up, then Brent's search between the best point's
+  neighbours (the minimum is sharp), then the same resonance step (τ not searched again); this
+  place is kept only where its training BIC beats the output place's complete model by more than
+  6 (the same decorrelated samples, 2 parameters per resonance). Choosing the place by the lag alone, before the resonance, took the
   drive on three spent records whose poles the output lag with its resonance had explained
   (docs/diagnosis.md). Reported as the low-frequency delay (τ + 2ζ/ω0, comparable with a
   plant's 1/ω_a + 2ζ/ω_0), the discretisation, the lag's ``place`` (``"output"`` or ``"drive"``),
@@ -673,8 +673,12 @@ class Design:
         whose down-threshold no recorded voltage reaches (once on, never off: the Preisach plane
         extends beyond the drive); negated where the displacement falls with the drive
         (:attr:`polarity`, :func:`drive_polarity`)."""
+        return self._relays_of(self.vc, n_levels)
+
+    def _relays_of(self, v_full: np.ndarray, n_levels: int) -> np.ndarray:
+        """:meth:`relays` of the full-rate voltage ``v_full`` (V, within the training range)."""
         pad = (self.v_hi - self.v_lo) / n_levels
-        return self.polarity * relay_features(self.vc, self.v_lo - pad, self.v_hi, n_levels + 1, self.block)
+        return self.polarity * relay_features(v_full, self.v_lo - pad, self.v_hi, n_levels + 1, self.block)
 
     def lagged_drive_columns(self, tau: float, n_levels: int) -> np.ndarray:
         """Offset, linear term and relay states (on the grid of :meth:`relays`) of the drive passed
@@ -686,11 +690,9 @@ class Design:
         reproduces."""
         b, a = dynamics_lag_filter(tau, self.dt / self.block)
         lagged = _filt(b, a, self.fine[:, None])
-        pad = (self.v_hi - self.v_lo) / n_levels
-        relays = relay_features(np.clip(lagged[:, 0], self.v_lo, self.v_hi), self.v_lo - pad, self.v_hi,
-                                n_levels + 1, self.block)
+        relays = self._relays_of(np.clip(lagged[:, 0], self.v_lo, self.v_hi), n_levels)
         vn = (block_means(lagged, self.block)[:, 0] - 0.5 * (self.v_lo + self.v_hi)) / (self.v_hi - self.v_lo)
-        return np.hstack([np.column_stack([np.ones_like(vn), vn]), self.polarity * relays])
+        return np.hstack([np.column_stack([np.ones_like(vn), vn]), relays])
 
     @cached_property
     def grid_prior_fits(self) -> dict:
@@ -994,6 +996,10 @@ class _LagFits:
             self.fits[lag] = self.fit(lag)
         return self.fits[lag]
 
+    def train_error(self, lag) -> float:
+        """Mean squared training residual (m²) of the fit with ``lag``."""
+        return float(np.mean((self(lag)[0] - self.x)[self.train] ** 2))
+
     def solve(self, lag, creep_basis=None):
         """One least-squares fit with the lag's filters applied to every column (creep bank included)."""
         d, nf = self.d, self.n_free_h
@@ -1061,9 +1067,6 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
                           relay_curvature(SEARCH_LEVELS + 1) if coarse else smooth, n_free_h, extra,
                           creep="creep" in eff, rows=int(np.flatnonzero(d.train)[-1]) + 1)
 
-        def train_error(candidate):
-            return float(np.mean((search(candidate)[0] - search.x)[search.train] ** 2))
-
         def best_lag(mode, discretisations=tuple(LAG_DISCRETISATIONS)):
             """(training error, (discretisation, τ, mode)) of the best lag with the resonance ``mode``."""
             # from 0.03 sample: an amplifier pole beyond the Nyquist frequency is a lag of a tenth of
@@ -1071,14 +1074,14 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
             grid = np.geomspace(0.03 * d.dt, max(0.02, 3 * d.dt), 14)
             # no lag at all is a candidate too: below half a sample a discretised lag smears every
             # voltage step over two samples (Tustin alternates), worse than none on step drives
-            best = (train_error(("tustin", 0.0, mode)), ("tustin", 0.0, mode))
+            best = (search.train_error(("tustin", 0.0, mode)), ("tustin", 0.0, mode))
             for discretisation in discretisations:
-                errors = {float(tau): train_error((discretisation, tau, mode)) for tau in grid}
+                errors = {float(tau): search.train_error((discretisation, tau, mode)) for tau in grid}
                 k = int(np.argmin(list(errors.values())))
                 # one refinement around the best grid point (geomspace keeps the end points exact)
                 for tau in np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)], 5):
                     tau = float(tau)
-                    error = errors[tau] if tau in errors else train_error((discretisation, tau, mode))
+                    error = errors[tau] if tau in errors else search.train_error((discretisation, tau, mode))
                     if error < best[0]:
                         best = (error, (discretisation, tau, mode))
             return best
@@ -1086,9 +1089,6 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
         def with_resonance(fits, lag, error_lag, retune):
             """(training error, lag, n_eff) after the resonance step on ``fits`` (kept only where
             the training BIC asks for it); ``retune``: search τ again under the mode."""
-            def error_of(candidate):
-                return float(np.mean((fits(candidate)[0] - fits.x)[fits.train] ** 2))
-
             prediction = fits(lag)[0]
             n_eff = max(int(d.train.sum()) / decorrelation_length((fits.x - prediction)[fits.train]), 5.0)
             estimate = estimate_resonance(fits.x, prediction, fits.train, d.dt)
@@ -1097,14 +1097,15 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
             f0, zeta = estimate
             modes = [(f0 * (1 + zeta * step), zeta * factor) for step in RESONANCE_F0_STEPS
                      for factor in RESONANCE_ZETA_FACTORS]
-            errors = [error_of((lag[0], lag[1], mode)) for mode in modes]
-            mode, error_mode = refine_mode(lambda m: error_of((lag[0], lag[1], m)), modes[int(np.argmin(errors))],
-                                           d.dt)
+            errors = [fits.train_error((lag[0], lag[1], mode)) for mode in modes]
+            mode, error_mode = refine_mode(lambda m: fits.train_error((lag[0], lag[1], m)),
+                                           modes[int(np.argmin(errors))], d.dt)
             lag_mode = (lag[0], lag[1], mode)
             if retune:
                 error_mode, lag_mode = best_lag(mode, (lag[0],))
                 if lag_mode[1] != lag[1]:  # the mode again under the lag found with it
-                    mode, error = refine_mode(lambda m: error_of((lag_mode[0], lag_mode[1], m)), mode, d.dt)
+                    mode, error = refine_mode(lambda m: fits.train_error((lag_mode[0], lag_mode[1], m)), mode,
+                                              d.dt)
                     if error < error_mode:
                         error_mode, lag_mode = error, (lag_mode[0], lag_mode[1], mode)
             if n_eff * np.log(error_mode / error_lag) + 2 * np.log(n_eff) < -RESONANCE_BIC:
@@ -1127,7 +1128,7 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
             def try_drive(tau):
                 if tau not in drive_errors:
                     fits = drive_fits(tau, levels, search.x.size)
-                    drive_errors[tau] = (float(np.mean((fits(None)[0] - fits.x)[fits.train] ** 2)), fits)
+                    drive_errors[tau] = (fits.train_error(None), fits)
                 return drive_errors[tau][0]
 
             # from one sample up: a shorter lag rounds no reversal that the record resolves, and in
