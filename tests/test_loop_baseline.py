@@ -266,6 +266,25 @@ def test_block_averaged_relay_features_are_the_block_means_of_the_full_rate_ones
     assert np.allclose(blocks, fine[: 3 * m].reshape(m, 3, -1).mean(axis=1))
 
 
+def test_relay_features_follow_each_smoothed_relay_through_the_record():
+    """The compiled kernel (sample by sample, every relay in turn) against the relay equation walked
+    relay by relay in plain Python: s ← min(max(s, r(u − i)), r(u − j)), r the unit ramp, starting
+    from r(u₀ − i); the same values to the last bit, in the order (i, j ≤ i) row by row."""
+    v = excitation("noise", 1000.0, 0.4, np.random.default_rng(7))[1]
+    n, lo, hi = 6, float(v.min()), float(v.max())
+    u = (v - lo) / (hi - lo) * n
+    ramp = lambda z: min(max(z, 0.0), 1.0)  # noqa: E731
+    expected = []
+    for i in range(n):
+        for j in range(i + 1):
+            s, states = ramp(u[0] - i), []
+            for z in u:
+                s = min(max(s, ramp(z - i)), ramp(z - j))
+                states.append(s)
+            expected.append(states)
+    assert np.array_equal(relay_features(v, lo, hi, n), np.array(expected).T)
+
+
 def test_a_decimated_record_is_fitted_with_full_rate_hysteresis():
     """5 Hz triangles sampled at 500 Hz for 40 s are block-mean decimated 3×: the averaged voltage
     misses every turning point's peak by up to a third of a sample's travel. Relays switched by the
