@@ -273,7 +273,10 @@ def test_relay_features_follow_each_smoothed_relay_through_the_record():
     v = excitation("noise", 1000.0, 0.4, np.random.default_rng(7))[1]
     n, lo, hi = 6, float(v.min()), float(v.max())
     u = (v - lo) / (hi - lo) * n
-    ramp = lambda z: min(max(z, 0.0), 1.0)  # noqa: E731
+
+    def ramp(z):
+        return min(max(z, 0.0), 1.0)
+
     expected = []
     for i in range(n):
         for j in range(i + 1):

@@ -216,7 +216,8 @@ def _relay_kernel(u, n, block, out):  # pragma: no cover - compiled
     k = 0
     for i in range(n):
         for j in range(i + 1):
-            state[k] = min(max(u[0] - i, 0.0), 1.0)  # approached from below: relays whose up-threshold is passed are on
+            # approached from below: relays whose up-threshold is passed are on
+            state[k] = min(max(u[0] - i, 0.0), 1.0)
             k += 1
     for t in range(m):
         for level in range(n):
