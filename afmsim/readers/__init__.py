@@ -3,6 +3,7 @@
     from afmsim.readers import read_afm_file, pick_height_pair
     afm = read_afm_file("circles.nid")                 # AfmFile: format, channels, metadata
     trace, retrace, picked = pick_height_pair(afm)     # the topography's forward/backward scans
+    error = pick_error_pair(afm, trace.shape)           # the Z loop's error signal beside it, or None
 
 Formats and the maintained package that reads each: Nanosurf ``.nid`` (``nsfopen``), Gwyddion
 ``.gwy`` (``gwyfile``), Asylum/Igor ``.ibw`` (``igor2``), Bruker/Veeco Nanoscope ``.spm`` and
@@ -27,10 +28,10 @@ from .jpk import read_jpk
 from .nid import read_nid
 from .npz import read_npz
 from .park import read_park
-from .pick import pick_height_pair
+from .pick import pick_error_pair, pick_height_pair
 
-__all__ = ["read_afm_file", "read_afm_files", "pick_height_pair", "AfmFile", "Channel", "ReaderError", "reader_for",
-           "FORMATS", "channel_listing", "format_listing"]
+__all__ = ["read_afm_file", "read_afm_files", "pick_height_pair", "pick_error_pair", "AfmFile", "Channel", "ReaderError",
+           "reader_for", "FORMATS", "channel_listing", "format_listing"]
 
 FORMATS = ".nid, .gwy, .ibw, .spm, .000–.999, .tiff/.tif (Park), .jpk, .npz"
 _READERS = {".nid": read_nid, ".gwy": read_gwy_file, ".ibw": read_ibw, ".npz": read_npz, ".tiff": read_park,

@@ -11,6 +11,11 @@ within a rank:
 2. any other length channel the vendor did not name as deflection, amplitude, …
 
 Second-pass (lift/interleave, Nanosurf "2nd scan") channels are never picked unless named.
+
+:func:`pick_error_pair` finds the Z loop's error signal beside the height: a channel the vendor
+names an error (``Amplitude Error``, ``Peak Force Error``, ``Error Signal``), else the oscillation
+amplitude (dynamic mode: the Z loop holds it at its setpoint), else the deflection (contact mode:
+likewise) — both directions, the height's pixel grid, no second pass.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ import re
 
 from .channels import RETRACE_DIRECTIONS, TRACE_DIRECTIONS, AfmFile, Channel, ReaderError
 
-__all__ = ["pick_height_pair"]
+__all__ = ["pick_height_pair", "pick_error_pair"]
 
 _REASONS = ("the Z drive/topography, what afmsim records as height", "a Z position sensor, the best height "
             "channel with both directions", "a length channel with both directions (no better-named height)")
@@ -98,3 +103,30 @@ def pick_height_pair(afm: AfmFile, channel: str | None = None) -> tuple[Channel,
     turned = f"; scan frame rotated {rotation:g}° from the stage axes" if rotation else ""
     return trace, retrace, (f"{label}: picked '{chosen}' {trace.direction}/{retrace.direction} ({reason}{also}), "
                             f"{trace.shape[0]}×{trace.shape[1]} px{turned}")
+
+
+def _error_rank(channel: Channel) -> int | None:
+    low = channel.name.lower()
+    if channel.quantity not in ("amplitude", "deflection") or re.search(r"2nd|lift|interleave|nap", low):
+        return None
+    if re.search(r"error", low):
+        return 0
+    return 1 if channel.quantity == "amplitude" else 2
+
+
+def pick_error_pair(afm: AfmFile, shape: tuple[int, int]) -> tuple[Channel, Channel] | None:
+    """``(trace, retrace)`` of the Z loop's error signal on a ``shape`` (lines, pixels) grid, or None.
+
+    The feedback holds this signal at its setpoint wherever the tip follows the surface; where it
+    departs, the recorded height is not the surface (edges taken faster than the loop can follow,
+    the tip leaving the surface). Preference: a channel named an error, then an amplitude, then a
+    deflection, first in file order within a rank.
+    """
+    best = None
+    for name, pair in _pairs(afm.channels).items():
+        if len(pair) < 2 or pair["trace"].shape != tuple(shape) or pair["retrace"].shape != tuple(shape):
+            continue
+        rank = _error_rank(pair["trace"])
+        if rank is not None and (best is None or rank < best[0]):
+            best = (rank, pair["trace"], pair["retrace"])
+    return None if best is None else best[1:]

@@ -15,26 +15,62 @@ Every entry gives ``share`` (fraction of Σr² over the held-out pixels) and ``s
 * ``time`` — first vs second half of the held-out lines (frame start: creep, approach transients);
 * ``lines`` — ``worst``: the held-out lines (each direction its own) with the largest residual, 5 %
   of them (at least one): a gap in a few lines is an event in those lines — a tip jump, a particle
-  picked up or dragged, a feedback glitch — that no stage or Z-loop term predicts.
+  picked up or dragged, a feedback glitch — that no stage or Z-loop term predicts;
+* ``z_loop`` (only where the record carries the Z loop's error signal, an instrument's amplitude /
+  deflection / error channel) — the pixels where the loop was out of regulation
+  (:func:`out_of_regulation`), each scored direction read on its own error signal, which lies on
+  the same pixels (the trace reference's own signal lies shifted by the stage's hysteresis and is
+  not used). The loop holds the signal at its setpoint while the tip follows the surface; where it
+  departs, the recorded height is not the surface. The gap there is shaped by the Z loop, not only
+  by the stage (:func:`z_loop_concentrated`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["localise_image"]
+__all__ = ["localise_image", "out_of_regulation", "z_loop_concentrated", "REGULATION_SIGMA"]
 
 WORST_LINES = 0.05  # share of the held-out lines counted as the worst
+#: Robust standard deviations of the error signal from its median beyond which the Z loop is out of
+#: regulation: far outside the signal's own scatter while the loop holds its setpoint (what it flags on
+#: the bundled real files: docs/diagnosis.md, "The Z loop's error signal").
+REGULATION_SIGMA = 5.0
+
+
+def out_of_regulation(error) -> np.ndarray | None:
+    """Pixels (lines, pixels; bool) where the error signal lies more than :data:`REGULATION_SIGMA`
+    robust σ from its median (the setpoint); None when the signal does not vary (no reading).
+    Non-finite pixels count as in regulation."""
+    e = np.asarray(error, dtype=float)
+    finite = e[np.isfinite(e)]
+    if finite.size == 0:
+        return None
+    centre = np.median(finite)
+    sigma = 1.4826 * np.median(np.abs(finite - centre)) or float(np.std(finite))
+    if sigma == 0:
+        return None
+    with np.errstate(invalid="ignore"):
+        return np.abs(e - centre) > REGULATION_SIGMA * sigma
+
+
+def z_loop_concentrated(where: dict) -> bool:
+    """Whether at least half of the gap lies where the Z loop was out of regulation, on pixels holding at
+    most half that share (twice what a uniform spread would put there)."""
+    z = where.get("z_loop")
+    return bool(z) and not z.get("constant") and z["share"] >= 0.5 and z["share"] >= 2.0 * z["sample_fraction"]
 
 
 def _share(r2: np.ndarray, mask: np.ndarray, total: float) -> dict:
     return {"share": round(float(r2[mask].sum()) / total, 4), "sample_fraction": round(float(mask.mean()), 4)}
 
 
-def localise_image(trace_res, retrace_res, trace_model, retrace_model, measured, held, *, with_trace=True) -> dict:
+def localise_image(trace_res, retrace_res, trace_model, retrace_model, measured, held, *, with_trace=True,
+                   error=None) -> dict:
     """Shares of the held-out gap. Residual and model images are (lines, pixels), residuals line-levelled;
     ``measured`` is the measured (trace, retrace) pair; ``held`` (bool, lines) selects the held-out
-    lines; ``with_trace=False`` scores the retrace only."""
+    lines; ``with_trace=False`` scores the retrace only. ``error`` (None: no ``z_loop`` entry):
+    ``{"channel": name, "trace": image, "retrace": image}``, the Z loop's error signal."""
     res = [retrace_res[held]] if not with_trace else [trace_res[held], retrace_res[held]]
     mod = [retrace_model[held]] if not with_trace else [trace_model[held], retrace_model[held]]
     r = np.stack(res)  # (directions, lines, pixels)
@@ -66,4 +102,17 @@ def localise_image(trace_res, retrace_res, trace_model, retrace_model, measured,
     energy = r2.sum(axis=2)  # (directions, lines)
     worst = energy >= np.sort(energy.ravel())[-max(1, int(round(WORST_LINES * energy.size)))]
     where["lines"] = {"worst": _share(r2, np.broadcast_to(worst[:, :, None], r.shape), total)}
+    if error is not None:
+        where["z_loop"] = _z_loop(error, r2, held, with_trace, total)
     return where
+
+
+def _z_loop(error: dict, r2, held, with_trace: bool, total: float) -> dict:
+    """The ``z_loop`` entry of :func:`localise_image`: each scored direction on its own error signal."""
+    own = (error["trace"], error["retrace"]) if with_trace else (error["retrace"],)
+    masks = [out_of_regulation(e) for e in own]
+    out = {"channel": error["channel"], "directions": "trace and retrace" if with_trace else "retrace"}
+    if any(m is None for m in masks):
+        return {**out, "constant": True}
+    mask = np.stack([m[held] for m in masks])
+    return {**out, "threshold_sigma": REGULATION_SIGMA, **_share(r2, mask, total)}

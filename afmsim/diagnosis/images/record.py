@@ -18,7 +18,11 @@ Accepted inputs (heights in metres, rows = scan lines along +y, columns = pixels
   overrides), scan size from the file, line rate ``1 / (2 · line_time_s)`` from the file (else the
   ``line_rate_hz`` argument); rows in the order they were scanned (a top-down frame's rows
   reversed); no scan offset (the vendors' offsets are not stage coordinates);
-* a mapping with the ``.npz`` keys.
+* a mapping with the ``.npz`` keys, and optionally ``error_trace``/``error_retrace`` (the Z loop's
+  error signal, same shape) with ``error_channel`` (its name).
+
+An instrument file's error signal (amplitude, deflection or a channel named an error) comes with
+its heights where the file has it in both directions (:func:`afmsim.readers.pick_error_pair`).
 
 Large images are cut down before a diagnosis (:func:`within_budget`): at most :data:`MAX_LINES`
 lines (the first ones scanned) and :data:`MAX_PIXELS` pixels per line (block means of neighbouring
@@ -33,7 +37,7 @@ runs of two or more, or a bad first/last pixel, are refused.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +76,12 @@ class ImageRecord:
     picked : str or None
         For an instrument file, the one line saying which channel pair was picked and why
         (:func:`afmsim.readers.pick_height_pair`); None otherwise.
+    error_trace, error_retrace : ndarray (lines, pixels) or None
+        The Z loop's error signal in each direction, on the height's grid (an instrument file's
+        amplitude / deflection / error channel, :func:`afmsim.readers.pick_error_pair`; the
+        ``.npz`` keys of the same names); non-finite pixels are left as they are. None when absent.
+    error_channel : str or None
+        Its name and unit (``"Amplitude (V)"``).
     """
 
     trace: np.ndarray
@@ -82,6 +92,9 @@ class ImageRecord:
     source: str = "arrays"
     filled_pixels: int = 0
     picked: str | None = None
+    error_trace: np.ndarray | None = field(default=None, repr=False)
+    error_retrace: np.ndarray | None = field(default=None, repr=False)
+    error_channel: str | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -145,7 +158,23 @@ def _validate(cols: dict, source: str, picked: str | None = None) -> ImageRecord
     retrace, n_r = _fill_isolated("retrace", retrace)
     if np.ptp(trace) == 0 or np.ptp(retrace) == 0:
         raise ValueError("trace or retrace is flat: there is no topography to diagnose")
-    return ImageRecord(trace, retrace, size, float(rate[0]), offset, source, n_t + n_r, picked)
+    errors = _error_pair(cols, trace.shape)
+    return ImageRecord(trace, retrace, size, float(rate[0]), offset, source, n_t + n_r, picked, *errors)
+
+
+def _error_pair(cols: dict, shape: tuple[int, int]) -> tuple:
+    """``(error_trace, error_retrace, error_channel)`` from the columns (all None when absent)."""
+    given = [k for k in ("error_trace", "error_retrace") if cols.get(k) is not None]
+    if not given:
+        return None, None, None
+    if len(given) == 1:
+        raise ValueError(f"{given[0]} given without {({'error_trace', 'error_retrace'} - set(given)).pop()}: "
+                         "the error signal needs both scan directions")
+    pair = tuple(np.asarray(cols[k], dtype=np.float64) for k in ("error_trace", "error_retrace"))
+    for key, image in zip(("error_trace", "error_retrace"), pair):
+        if image.shape != shape:
+            raise ValueError(f"{key} must have the heights' shape {shape}, got {image.shape}")
+    return (*pair, str(cols.get("error_channel") or "error signal"))
 
 
 def _own_pair(afm, channel: str | None) -> tuple:
@@ -181,7 +210,7 @@ def _columns(afm, channel: str | None, line_rate_hz: float | None) -> tuple[dict
     Line rate: an instrument file's or a plain ``.npz``'s own first, then ``line_rate_hz``; for a
     run's ``images.npz``/``images.gwy`` ``line_rate_hz`` first, then what the run recorded.
     """
-    from afmsim.readers import pick_height_pair
+    from afmsim.readers import pick_error_pair, pick_height_pair
 
     own = afm.format == "npz" or (afm.format == "gwy" and any(c.direction in ("trace", "retrace")
                                                               for c in afm.channels))
@@ -199,6 +228,10 @@ def _columns(afm, channel: str | None, line_rate_hz: float | None) -> tuple[dict
                          "give --scenario (scan.line_rate_hz)")
     cols = {"trace": trace.data, "retrace": retrace.data, "scan_size_m": trace.size_m, "line_rate_hz": rate,
             "scan_offset_m": offset}
+    error = None if own else pick_error_pair(afm, trace.shape)
+    if error is not None:
+        cols.update(error_trace=error[0].data, error_retrace=error[1].data,
+                    error_channel=f"{error[0].name} ({error[0].unit or 'no unit'})")
     return cols, picked, label
 
 
@@ -228,7 +261,9 @@ def within_budget(record: ImageRecord) -> tuple[ImageRecord, dict | None]:
     size = (record.scan_size_m[0] * kept / nx, record.scan_size_m[1] * lines / ny)
     done = {"lines_used": lines, "of_lines": ny, "pixels_per_bin": k, "pixels_used": kept, "of_pixels": nx,
             "scan_size_m": list(size)}
-    return replace(record, trace=cut(record.trace), retrace=cut(record.retrace), scan_size_m=size), done
+    errors = {} if record.error_trace is None else \
+        {"error_trace": cut(record.error_trace), "error_retrace": cut(record.error_retrace)}
+    return replace(record, trace=cut(record.trace), retrace=cut(record.retrace), scan_size_m=size, **errors), done
 
 
 def budget_text(done: dict) -> str:
