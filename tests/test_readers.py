@@ -159,8 +159,10 @@ def test_inspect_json_schema_on_a_real_file():
         assert channel["shape"] == [256, 256] and channel["size_m"] == pytest.approx([50e-6, 50e-6])
     assert {(c["name"], c["direction"]) for c in listing["channels"]} >= {("Z-Axis Sensor", "backward"),
                                                                          ("Phase", "forward")}
+    assert listing["error_signal"] == "Amplitude"  # dynamic mode: the amplitude, not the phase
     text = runner.invoke(app, ["inspect", str(REAL / "test.nid")])
     assert text.exit_code == 0 and "Z-Axis Sensor" in text.output and "picked 'Z-Axis'" in text.output
+    assert "Z loop's error signal: 'Amplitude'" in text.output
 
 
 # --- formats made with maintained writers (or from the spec) ----------------------------------------
