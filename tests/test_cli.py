@@ -9,6 +9,7 @@ import yaml
 from typer.testing import CliRunner
 
 from afmsim.cli import app
+from afmsim.diagnosis import load_images
 from afmsim.experiment import run_scenario
 from afmsim.scenario import load_scenario
 
@@ -137,6 +138,10 @@ def test_run_writes_images_metrics_and_manifest(quick_run):
     assert "commit" in manifest["git"]
     with np.load(out / "images.npz") as arrays:
         assert arrays["trace_none"].shape == (64, 64) and arrays["retrace_diapi"].shape == (64, 64)
+        error = arrays["error_retrace_none"]  # the deflection images: deflection less setpoint (m)
+        assert error.shape == (64, 64) and abs(np.median(error)) < 0.5e-9 and np.ptp(error) > 1e-9
+    record = load_images(out / "images.npz")  # the diagnosis reads them beside the heights
+    assert record.error_channel == "deflection error (m)" and np.array_equal(record.error_retrace, error)
     assert "e_D" in output
     assert "experiment 1/1" not in output          # no progress bar when output is not a terminal
 
@@ -149,6 +154,7 @@ def test_python_api_twin_gives_the_same_arrays(quick_run):
         for name, images in result.images.items():
             np.testing.assert_array_equal(arrays[f"trace_{name}"], images.trace.z)
             np.testing.assert_array_equal(arrays[f"retrace_{name}"], images.retrace.z)
+            np.testing.assert_array_equal(arrays[f"error_trace_{name}"], images.error_trace)
 
 
 def test_run_refuses_an_existing_output_folder(quick_run):

@@ -335,14 +335,22 @@ def test_npz_run_images_and_plain_pair(tmp_path):
     assert afm.format == "npz" and t.line_time_s == pytest.approx(0.1) and np.array_equal(r.data, retrace)
     run = tmp_path / "images.npz"
     np.savez(run, trace_none=trace, retrace_none=retrace, trace_diapi=trace, retrace_diapi=retrace,
+             error_trace_diapi=trace / 10, error_retrace_diapi=retrace / 10,
              truth=trace[:8], image_pixel_size_m=[1e-7, 1e-7], image_origin_m=[0, 0],
              sample_pixel_size_m=[5e-8, 5e-8])
-    channels = {(c.name, c.direction): c for c in read_afm_file(run).channels}
-    assert set(channels) == {("none", "trace"), ("none", "retrace"), ("diapi", "trace"), ("diapi", "retrace"),
-                             ("truth", "")}
-    assert channels["none", "trace"].size_m == pytest.approx((3.2e-6, 2.4e-6))
-    assert channels["truth", ""].size_m == pytest.approx((1.6e-6, 0.4e-6))
+    channels = {(c.name, c.direction, c.quantity): c for c in read_afm_file(run).channels}
+    assert set(channels) == {("none", "trace", "height"), ("none", "retrace", "height"), ("diapi", "trace", "height"),
+                             ("diapi", "retrace", "height"), ("diapi", "trace", "deflection"),
+                             ("diapi", "retrace", "deflection"), ("truth", "", "height")}
+    assert channels["none", "trace", "height"].size_m == pytest.approx((3.2e-6, 2.4e-6))
+    assert channels["truth", "", "height"].size_m == pytest.approx((1.6e-6, 0.4e-6))
     assert pick_height_pair(read_afm_file(run), "diapi")[0].name == "diapi"
+    with_error, without = (load_images(run, channel=c, line_rate_hz=2.0) for c in ("diapi", "none"))
+    assert np.array_equal(with_error.error_retrace, retrace / 10) and without.error_trace is None  # each its own
+    np.savez(plain, trace=trace, retrace=retrace, scan_size_m=[3.2e-6, 2.4e-6], line_rate_hz=5.0,
+             error_trace=trace / 10, error_retrace=retrace / 10)
+    record = load_images(plain)
+    assert record.error_channel == "deflection error (m)" and np.array_equal(record.error_trace, trace / 10)
 
 
 def test_afmsim_own_images_come_through_the_shared_readers(tmp_path):

@@ -80,7 +80,8 @@ def test_surface_lookup_equals_scipy_bilinear_with_nearest_edges():
 # Z loop
 # ----------------------------------------------------------------------------------------------
 def direct_z_loop(surface, sample_rate_hz, stage: ZStage, feedback: ZFeedback, noise):
-    """The Z loop exactly as the module docstring writes it, one loop step at a time (slow)."""
+    """The Z loop exactly as the module docstring writes it, one loop step at a time (slow): the
+    recorded heights and each sample's mean error e = δ + noise − setpoint."""
     n = surface.size
     substeps = max(1, int(np.ceil(feedback.loop_rate_hz / sample_rate_hz)))
     dt = 1.0 / (sample_rate_hz * substeps)
@@ -90,15 +91,16 @@ def direct_z_loop(surface, sample_rate_hz, stage: ZStage, feedback: ZFeedback, n
     u = u_centre = 0.5 * u_max
     h = integral = 0.0
     b0 = surface[0] - feedback.setpoint_m - s_true * u_centre
-    out = np.empty(n)
+    out, err = np.empty(n), np.empty(n)
     for k in range(n):
         prev, nxt = surface[max(k - 1, 0)], surface[min(k + 1, n - 1)]
-        acc = 0.0
+        acc = acc_e = 0.0
         for j in range(substeps):
             frac = (j + 0.5) / substeps - 0.5
             s = surface[k] + frac * ((surface[k] - prev) if frac < 0 else (nxt - surface[k]))
             delta = max(s - (b0 + s_true * (u - h)), 0.0)
             e = delta + noise[k] - feedback.setpoint_m
+            acc_e += e
             integral += e * dt
             u_new = min(max(u_centre + (feedback.kp * e + feedback.ki_per_s * integral) / s_nom, 0.0), u_max)
             if stage.hysteresis:
@@ -107,7 +109,8 @@ def direct_z_loop(surface, sample_rate_hz, stage: ZStage, feedback: ZFeedback, n
             u = u_new
             acc += u
         out[k] = acc / substeps * s_nom
-    return out - out[0] + surface[0]
+        err[k] = acc_e / substeps
+    return out - out[0] + surface[0], err
 
 
 @pytest.mark.parametrize("hysteresis", [True, False])
@@ -123,11 +126,31 @@ def test_z_loop_kernel_equals_the_direct_loop(hysteresis, case):
         stage = ZStage(hysteresis=hysteresis, max_voltage_V=1 * UM / 0.6e-6)
         feedback = ZFeedback(ki_per_s=20000.0, kp=0.5)
     noise = np.random.default_rng(8).normal(0.0, feedback.deflection_noise_m, surface.size)
-    expected = direct_z_loop(surface, fs, stage, feedback, noise)
-    got = track_surface(surface, fs, stage, feedback, np.random.default_rng(8))
+    expected, expected_error = direct_z_loop(surface, fs, stage, feedback, noise)
+    error = np.empty(surface.size)
+    got = track_surface(surface, fs, stage, feedback, np.random.default_rng(8), error=error)
     if case == "saturating":                                       # the drive sits on its upper clip
         assert np.count_nonzero(np.isclose(got, got.max(), rtol=0, atol=1e-6 * NM)) > 100
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9 * np.ptp(expected))
+    np.testing.assert_allclose(error, expected_error, rtol=0, atol=1e-9 * np.ptp(expected))
+    np.testing.assert_array_equal(track_surface(surface, fs, stage, feedback, np.random.default_rng(8)), got)
+
+
+def test_the_error_signal_holds_its_setpoint_and_sits_at_minus_the_setpoint_while_the_tip_parachutes():
+    """A 300 nm step down at ki = 3000 /s, setpoint 20 nm: off the surface the deflection is 0, so the
+    error is −setpoint (± the 0.1 nm noise) until the base has fallen the step less the deflection it
+    held, 280 nm at ki·setpoint (4.7 ms); on the flats the error averages 0; the step up drives it
+    positive."""
+    fs, feedback = 10_000.0, ZFeedback()
+    k = np.arange(600)
+    surface = 300 * NM * ((k >= 100) & (k < 400))
+    error = np.empty(surface.size)
+    track_surface(surface, fs, ZStage(hysteresis=False), feedback, np.random.default_rng(2), error=error)
+    fall_samples = int((300 * NM - feedback.setpoint_m) / (feedback.ki_per_s * feedback.setpoint_m) * fs)  # 46
+    off = error[401:400 + fall_samples - 2]
+    np.testing.assert_allclose(off, -feedback.setpoint_m, atol=5 * feedback.deflection_noise_m)
+    assert error[400 + fall_samples + 20:].mean() == pytest.approx(0.0, abs=0.05 * NM)
+    assert abs(error[300:399].mean()) < 0.05 * NM and error[100:103].max() > 50 * NM  # 399 spans the step
 
 
 # ----------------------------------------------------------------------------------------------

@@ -1,12 +1,14 @@
 """afmsim's own ``.npz`` images: a run's ``images.npz`` or a plain trace/retrace ``.npz``.
 
 * ``images.npz`` (``afmsim run``): ``trace_<controller>``/``retrace_<controller>`` become channels
-  named after the controller (directions ``trace``/``retrace``), ``truth``/``dilated`` the sample
-  and the surface the tip sees (no direction); sizes from ``image_pixel_size_m`` /
-  ``sample_pixel_size_m``; the line time from ``scenario.yaml`` beside the file
-  (``1 / (2 · scan.line_rate_hz)``), else none.
+  named after the controller (directions ``trace``/``retrace``), ``error_trace_<controller>``/
+  ``error_retrace_<controller>`` deflection channels of the same name (the Z loop's error signal,
+  m), ``truth``/``dilated`` the sample and the surface the tip sees (no direction); sizes from
+  ``image_pixel_size_m`` / ``sample_pixel_size_m``; the line time from ``scenario.yaml`` beside the
+  file (``1 / (2 · scan.line_rate_hz)``), else none.
 * a plain ``.npz`` with ``trace``, ``retrace``, ``scan_size_m`` and optionally ``line_rate_hz``
-  (Hz, one line = trace + retrace) and ``scan_offset_m``; the pair becomes a channel ``height``.
+  (Hz, one line = trace + retrace) and ``scan_offset_m``; the pair becomes a channel ``height``,
+  optional ``error_trace``/``error_retrace`` (m) a deflection channel ``error``.
 
 Rows are lines in scan order (+y), columns left → right in both directions, heights in metres.
 ``Channel.offset_m`` is the window's lower-left corner in stage coordinates: ``scan_offset_m``, or
@@ -71,8 +73,12 @@ def _plain_pair(path: Path, arrays: dict) -> list[Channel]:
             raise ReaderError(f"{path.name}: line_rate_hz must be positive (Hz), got {rate}")
         line_time = 1.0 / (2.0 * rate)
     offset = _numbers(path, arrays, "scan_offset_m", 2, "m") if "scan_offset_m" in arrays else None
-    return [Channel("height", direction, "height", "m", images[direction], size, line_time, offset)
-            for direction in ("trace", "retrace")]
+    channels = [Channel("height", direction, "height", "m", images[direction], size, line_time, offset)
+                for direction in ("trace", "retrace")]
+    errors = [k for k in ("error_trace", "error_retrace") if k in arrays]
+    for key, image in _images(path, arrays, errors).items():
+        channels.append(Channel("error", key.partition("_")[2], "deflection", "m", image, size, line_time, offset))
+    return channels
 
 
 def _run_images(path: Path, arrays: dict) -> list[Channel]:
@@ -81,11 +87,13 @@ def _run_images(path: Path, arrays: dict) -> list[Channel]:
     offset = None if origin is None else (origin[0] - pixel[0] / 2, origin[1] - pixel[1] / 2)
     line_time = _scenario_line_time(path)
     keys = [k for k in arrays if k.partition("_")[0] in ("trace", "retrace") and k.partition("_")[2]]
+    errors = [k for k in arrays if k.startswith(("error_trace_", "error_retrace_")) and k.count("_") >= 2]
     channels = []
-    for key, image in _images(path, arrays, keys).items():
+    for key, image in _images(path, arrays, keys + errors).items():
+        quantity, key = ("deflection", key.partition("_")[2]) if key in errors else ("height", key)
         direction, _, name = key.partition("_")
         size = (pixel[0] * image.shape[1], pixel[1] * image.shape[0])
-        channels.append(Channel(name, direction, "height", "m", image, size, line_time, offset))
+        channels.append(Channel(name, direction, quantity, "m", image, size, line_time, offset))
     samples = [k for k in ("truth", "dilated") if k in arrays and "sample_pixel_size_m" in arrays]
     if samples:
         sample_pixel = _numbers(path, arrays, "sample_pixel_size_m", 2, "m")

@@ -59,8 +59,10 @@ def write_run(result: ScenarioResult, folder, *, renders: str = "key", progress=
     done, total)`` hears of the "figures", "renders" and "report" stages.
 
     ``images.npz`` holds ``trace_<controller>``/``retrace_<controller>`` of experiment 1 (heights in
-    metres, rows = lines, columns = pixels left → right), ``truth`` and ``dilated`` (the sample and
-    the surface the tip sees, on the simulation grid), and the grids' ``*_pixel_size_m``/``*_origin_m``.
+    metres, rows = lines, columns = pixels left → right), ``error_trace_<controller>``/
+    ``error_retrace_<controller>`` (the Z loop's error signal, deflection less setpoint, m: the
+    deflection images an AFM records), ``truth`` and ``dilated`` (the sample and the surface the tip
+    sees, on the simulation grid), and the grids' ``*_pixel_size_m``/``*_origin_m``.
     """
     if renders not in RENDER_CHOICES:
         raise ValueError(f"renders must be one of {', '.join(RENDER_CHOICES)}, got {renders!r}")
@@ -156,6 +158,9 @@ def _write_arrays(result: ScenarioResult, folder: Path, scenario_yaml: str) -> l
         arrays[f"retrace_{name}"] = images.retrace.z
         arrays[f"actual_x_trace_{name}"] = images.actual_x_trace
         arrays[f"actual_x_retrace_{name}"] = images.actual_x_retrace
+        if images.error_trace is not None:
+            arrays[f"error_trace_{name}"] = images.error_trace
+            arrays[f"error_retrace_{name}"] = images.error_retrace
     if result.images:
         first = next(iter(result.images.values())).trace
         arrays["image_pixel_size_m"] = np.array(first.pixel_size)

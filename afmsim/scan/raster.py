@@ -25,6 +25,9 @@ class ScanImages:
     time samples at which a drive sat at its amplifier limit: ``"x"``, ``"y"`` (XY drive clipped,
     :meth:`afmsim.stage.PiezoAxis.clipped`), ``"z"`` (Z loop pinned, :func:`track_surface`) and
     ``"any"`` (at least one of them); ``samples`` is the frame's number of time samples.
+    ``error_trace``/``error_retrace`` (m, same pixels) are the Z loop's error signal, the measured
+    deflection less the setpoint, as an AFM records its deflection (error) images (None when not
+    recorded).
     """
 
     trace: HeightMap
@@ -33,6 +36,8 @@ class ScanImages:
     actual_x_retrace: np.ndarray
     saturated: dict = field(default_factory=lambda: {"x": 0, "y": 0, "z": 0, "any": 0})
     samples: int = 0
+    error_trace: np.ndarray | None = field(default=None, repr=False)
+    error_retrace: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def saturated_fraction(self) -> float:
@@ -87,9 +92,11 @@ def scan_frame(surface: HeightMap, trajectory: RasterTrajectory, stage, controll
     vy = controller_y.predict(trajectory.y)
     x_actual, y_actual = positions if positions is not None else stage.move(trajectory.t, vx, vy)
     z_limit = np.empty(trajectory.t.size, dtype=bool)
+    error = np.empty(trajectory.t.size)
     heights = track_surface(surface_under_tip(surface, x_actual, y_actual), trajectory.geometry.sample_rate_hz,
-                            z_stage, z_feedback, rng, at_limit=z_limit)
+                            z_stage, z_feedback, rng, at_limit=z_limit, error=error)
     trace, retrace = trajectory.to_images(heights)
+    error_trace, error_retrace = trajectory.to_images(error)
     ax_trace, ax_retrace = trajectory.to_images(x_actual)
     g = trajectory.geometry
     origin = (g.pixel_centres_x[0], g.line_centres_y[0])
@@ -98,4 +105,4 @@ def scan_frame(surface: HeightMap, trajectory: RasterTrajectory, stage, controll
     saturated = {axis: int(np.count_nonzero(mask)) for axis, mask in limits.items()}
     saturated["any"] = int(np.count_nonzero(limits["x"] | limits["y"] | limits["z"]))
     return ScanImages(HeightMap(trace, g.pixel_size, origin), HeightMap(retrace, g.pixel_size, origin),
-                      ax_trace, ax_retrace, saturated, int(z_limit[frame].size))
+                      ax_trace, ax_retrace, saturated, int(z_limit[frame].size), error_trace, error_retrace)

@@ -80,7 +80,7 @@ class ZFeedback:
 
 
 @njit(cache=True, nogil=True, fastmath={"contract"})
-def _track(surface, substeps, dt, ki, kp, setpoint, noise, s_nom, s_true, u_max, a, beta, gamma, out):  # pragma: no cover
+def _track(surface, substeps, dt, ki, kp, setpoint, noise, s_nom, s_true, u_max, a, beta, gamma, out, err):  # pragma: no cover
     """The loop of the module docstring, rearranged so that one loop step is a short chain of operations.
 
     The loop is a serial recurrence (10⁷–10⁸ steps per frame), so its speed is the latency of one
@@ -94,6 +94,7 @@ def _track(surface, substeps, dt, ki, kp, setpoint, noise, s_nom, s_true, u_max,
     both branch factors are formed from ``h`` one step ahead, off the critical path. The gap is
     re-derived from ``(u, h)`` at every sample, so rounding cannot accumulate; ``A = β = γ = 0`` is
     the linear stage. Results agree with the direct form to rounding (≈1e-13 of the height range).
+    ``err[k]``: the sample's mean measured error ``e`` (m), summed off the critical path.
     """
     n = surface.shape[0]
     u_centre = 0.5 * u_max
@@ -127,8 +128,10 @@ def _track(surface, substeps, dt, ki, kp, setpoint, noise, s_nom, s_true, u_max,
         drive_noise = c_all * noise_k
         gap = sk + frac_prev[0] * down + frac_next[0] * up - (b0 + s_true * (u - h))
         acc = 0.0
+        acc_m = 0.0
         for j in range(substeps):
             m = gap if gap > 0.0 else 0.0
+            acc_m += m
             du = c_all * m + (p + drive_noise - u)
             du = min(max(du, -u), u_max - u)
             p += c_int * (m + noise_k)
@@ -143,10 +146,12 @@ def _track(surface, substeps, dt, ki, kp, setpoint, noise, s_nom, s_true, u_max,
             u += du
             acc += u
         out[k] = acc / substeps * s_nom
+        err[k] = acc_m / substeps + noise_k
 
 
 def track_surface(surface_m: np.ndarray, sample_rate_hz: float, stage: ZStage, feedback: ZFeedback,
-                  rng: np.random.Generator, *, at_limit: np.ndarray | None = None) -> np.ndarray:
+                  rng: np.random.Generator, *, at_limit: np.ndarray | None = None,
+                  error: np.ndarray | None = None) -> np.ndarray:
     """Run the Z loop along a tip path; return the recorded height per sample, metres.
 
     ``surface_m[k]`` is the dilated surface height under the tip's actual XY position at sample
@@ -159,6 +164,11 @@ def track_surface(surface_m: np.ndarray, sample_rate_hz: float, stage: ZStage, f
     ``at_limit``, if given (a bool array of the surface's length), is set True at the samples over
     which the Z drive sat at an amplifier limit (0 V or ``max_voltage_V``) for the whole interval:
     there the tip no longer follows the surface (Z travel exceeded).
+
+    ``error``, if given (a float array of the surface's length), receives the loop's error signal
+    per sample: the measured deflection less the setpoint (m), the interval's mean — what an AFM
+    records as its deflection (error) image: 0 while the tip follows the surface, −setpoint where it
+    has left it.
     """
     surface = np.ascontiguousarray(surface_m, dtype=np.float64)
     substeps = max(1, int(np.ceil(feedback.loop_rate_hz / sample_rate_hz)))
@@ -168,12 +178,13 @@ def track_surface(surface_m: np.ndarray, sample_rate_hz: float, stage: ZStage, f
                          f"raise numerics loop rate or lower ki")
     noise = rng.normal(0.0, feedback.deflection_noise_m, surface.size)
     out = np.empty_like(surface)
+    err = error if error is not None else np.empty_like(surface)
     # The stage is calibrated (as users do on a step standard) so that its small-signal slope
     # S_true·(1 − A) equals the nominal sensitivity that converts the drive into height.
     true_sensitivity = stage.sensitivity_m_per_V / (1.0 - stage.bw_alpha) if stage.hysteresis else stage.sensitivity_m_per_V
     a, beta, gamma = (stage.bw_alpha, stage.bw_beta_per_V, stage.bw_gamma_per_V) if stage.hysteresis else (0.0, 0.0, 0.0)
     _track(surface, substeps, dt, feedback.ki_per_s, feedback.kp, feedback.setpoint_m, noise,
-           stage.sensitivity_m_per_V, true_sensitivity, stage.max_voltage_V, a, beta, gamma, out)
+           stage.sensitivity_m_per_V, true_sensitivity, stage.max_voltage_V, a, beta, gamma, out, err)
     if at_limit is not None:  # out is the mean drive × S_nom, in [0, u_max·S_nom]; u ≥ 0 always
         top = stage.max_voltage_V * stage.sensitivity_m_per_V
         np.logical_or(out <= 0.0, out >= top * (1 - 1e-9), out=at_limit)

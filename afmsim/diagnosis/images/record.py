@@ -202,6 +202,15 @@ def _own_pair(afm, channel: str | None) -> tuple:
     return pair["trace"], pair["retrace"], name
 
 
+def _own_error_pair(afm, trace) -> tuple | None:
+    """The error signal beside afmsim's own height pair: a run's ``error_trace_<controller>`` pair
+    (deflection channels of the controller's name), a plain ``.npz``'s ``error_trace``/``error_retrace``."""
+    name = "error" if trace.name == "height" else trace.name
+    pair = {c.direction: c for c in afm.channels if c.quantity == "deflection" and c.name == name
+            and c.shape == trace.shape}
+    return (pair["trace"], pair["retrace"]) if {"trace", "retrace"} <= set(pair) else None
+
+
 def _columns(afm, channel: str | None, line_rate_hz: float | None) -> tuple[dict, str | None, str | None]:
     """``(columns, picked, label)``: the :func:`_validate` columns of a file read by
     :mod:`afmsim.readers`, the one-line description of the vendor channel picked (None for
@@ -228,10 +237,10 @@ def _columns(afm, channel: str | None, line_rate_hz: float | None) -> tuple[dict
                          "give --scenario (scan.line_rate_hz)")
     cols = {"trace": trace.data, "retrace": retrace.data, "scan_size_m": trace.size_m, "line_rate_hz": rate,
             "scan_offset_m": offset}
-    error = None if own else pick_error_pair(afm, trace.shape)
+    error = _own_error_pair(afm, trace) if own else pick_error_pair(afm, trace.shape)
     if error is not None:
         cols.update(error_trace=error[0].data, error_retrace=error[1].data,
-                    error_channel=f"{error[0].name} ({error[0].unit or 'no unit'})")
+                    error_channel="deflection error (m)" if own else f"{error[0].name} ({error[0].unit or 'no unit'})")
     return cols, picked, label
 
 
