@@ -11,9 +11,8 @@ Protocol of :func:`diagnose_images` (the image twin of :func:`~afmsim.diagnosis.
    scenario's tip and Z loop (ideal without a scenario), plus every effect the scenario already
    switches on (fitted); heights are compared line-levelled;
 3. the held-out residual is localised (:func:`~afmsim.diagnosis.images.localise.localise_image`),
-   on an instrument file also against the Z loop's own error signal (where the loop was out of
-   regulation the recorded height is not the surface: a gap there is shaped by the Z loop, not only
-   by the stage);
+   where the record has the Z loop's error signal also on the pixels where the loop was off its
+   setpoint (a localisation only: it does not single out the Z loop);
 4. greedy attribution by the engine shared with loops (:mod:`~afmsim.diagnosis.engine`), with the same test (:func:`~afmsim.diagnosis.engine.significance`:
    ΔBIC on the correlation-discounted held-out sample count with the candidate's extra parameters,
    ≥ 70 % of 10 held-out blocks improved, ≥ 3 % RMS drop and ≥ 15 % of the gap above the noise
@@ -49,7 +48,7 @@ from afmsim.reproducible import single_blas_thread
 from ..engine import Front, Rules, attribute, conclude, effect_lines, flattest_noise, noise_floor, ratio_text, rms, verdict_text
 from ..scenario_effects import as_scenario, modelled_effects
 from .fit import ImageDesign, ImageFit, fit_image, redundancy
-from .localise import localise_image, z_loop_concentrated
+from .localise import localise_image
 from .model import Layout, ZLoop
 from .record import ImageRecord, budget_text, load_images, within_budget
 from .reference import scenario_reference
@@ -285,8 +284,6 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
     }
     if record.error_channel is not None:
         report["images"]["error_channel"] = record.error_channel
-        if report["status"] in ("unexplained", "partly_explained"):
-            report["unexplained"]["z_loop"] = z_loop_concentrated(report["unexplained"]["where"])
     report["final"]["gap_to_sensor_noise"] = _ratio(report["final"]["rms_gap"], sensor)
     summary = (budget_text(cut) + "\n" if cut else "") + image_summary(report)
     if figure_path is not None:
@@ -331,17 +328,9 @@ def where_text(w: dict) -> str:
         parts.insert(0, f"trace/retrace {w['direction']['trace']['share']:.0%}/{w['direction']['retrace']['share']:.0%}")
     if "z_loop" in w and not w["z_loop"].get("constant"):
         z = w["z_loop"]
-        parts.append(f"Z loop off its setpoint ({z['directions']}'s own {z['channel']} > {z['threshold_sigma']:g}σ) "
+        parts.append(f"error signal off its setpoint ({z['directions']}'s own {z['channel']} > {z['threshold_sigma']:g}σ) "
                      f"{z['share']:.0%} of gap on {z['sample_fraction']:.0%} of pixels")
     return "; ".join(parts) + "."
-
-
-#: The reading of a remainder concentrated where the Z loop was off its setpoint (``unexplained.z_loop``).
-Z_LOOP_READING = ("Z loop: {share:.0%} of what is left lies on the {fraction:.0%} of pixels where the {directions}'s "
-                  "own error signal ({channel}) is off its setpoint. There the loop did not hold the tip on the "
-                  "surface, so the recorded height is not the surface: the Z loop, not only the stage, shapes that "
-                  "part (a tracking lag, or the tip losing the surface at downhill edges). A slower scan would tell "
-                  "how much is the loop's: that part shrinks with the scan speed.")
 
 
 def image_summary(rep: dict) -> str:
@@ -361,10 +350,6 @@ def image_summary(rep: dict) -> str:
     for name, why in rep["not_identifiable"].items():
         lines.append(f"  {name:<15} not identifiable: {why}")
     lines.append(verdict_text(rep, where_text))
-    if rep["unexplained"].get("z_loop"):
-        z = rep["unexplained"]["where"]["z_loop"]
-        lines.append(Z_LOOP_READING.format(share=z["share"], fraction=z["sample_fraction"], channel=z["channel"],
-                                           directions=z["directions"]))
     return "\n".join(lines)
 
 

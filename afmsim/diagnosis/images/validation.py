@@ -134,7 +134,8 @@ def _stage(effects: dict):
 
 
 def simulate_images(scenario, effects: dict, seed: int) -> dict:
-    """Trace/retrace of ``scenario`` scanned by the simulator with ``effects`` on; the ``.npz`` keys."""
+    """Trace/retrace of ``scenario`` scanned by the simulator with ``effects`` on; the ``.npz`` keys, with
+    the Z loop's deflection images as ``error_trace``/``error_retrace`` (what an instrument file gives)."""
     g = scan_geometry(scenario)
     truth, _mesh = build_sample(scenario, g)
     surface = dilate(truth, mlct_tip("paraboloid", effects.get("tip", KNOWN_TIP_M)))
@@ -149,7 +150,8 @@ def simulate_images(scenario, effects: dict, seed: int) -> dict:
                      hysteresis=scenario.z_stage.hysteresis)
     images = scan_frame(surface, raster_trajectory(g), stage, *controllers, z_stage, loop, np.random.default_rng(seed))
     return {"trace": images.trace.z, "retrace": images.retrace.z, "scan_size_m": g.size,
-            "line_rate_hz": g.line_rate_hz, "scan_offset_m": g.offset}
+            "line_rate_hz": g.line_rate_hz, "scan_offset_m": g.offset, "error_trace": images.error_trace,
+            "error_retrace": images.error_retrace, "error_channel": "deflection error (m)"}
 
 
 def make_image_case(spec, rng: np.random.Generator, pixels: int = 64) -> dict:
