@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 from afmsim.cli import app
 from afmsim.diagnosis import diagnose_images, load_images, validate_image_diagnosis
 from afmsim.diagnosis.images.model import Layout, ZLoop
+from afmsim.diagnosis.images.record import MIN_LINES
 from afmsim.diagnosis.images.reference import Surface, parabolic_dilation
 from afmsim.diagnosis.images.validation import image_case_plan, make_image_case
 from afmsim.report.gwy import write_gwy
@@ -55,6 +56,33 @@ def test_bad_images_are_refused_with_one_line(tmp_path):
     rec = load_images({**good, "trace": holed})
     assert rec.filled_pixels == 1 and np.isfinite(rec.trace).all()
     assert rec.trace[5, 10] == pytest.approx(0.5 * (holed[5, 9] + holed[5, 11]))
+
+
+def test_a_frame_stopped_early_is_diagnosed_on_the_lines_it_scanned(tmp_path):
+    """Lines never scanned at the frame's end — zero-filled, NaN, or cut short by a NaN run — are dropped
+    with their share of the scan height (and the error signal's lines with them); the same hole in a
+    line the frame goes on after is still refused, and so is a frame with too few scanned lines."""
+    good = _pair(lines=40)
+    trace, retrace = good["trace"].copy(), good["retrace"].copy()
+    trace[30:] = 0.0  # the instrument's fill
+    retrace[32:] = np.nan
+    retrace[29, 15:] = np.nan  # stopped within line 29's retrace
+    errors = {"error_trace": np.ones((40, 24)) + trace, "error_retrace": np.ones((40, 24))}
+    rec = load_images({**good, "trace": trace, "retrace": retrace, **errors})
+    assert rec.shape == (29, 24) and rec.unscanned_lines == 11 and rec.error_trace.shape == (29, 24)
+    assert rec.scan_size_m == pytest.approx((10e-6, 8e-6 * 29 / 40)) and np.array_equal(rec.trace, trace[:29])
+    middle = retrace.copy()
+    middle[29, 15:] = good["retrace"][29, 15:]
+    middle[10, 3:6] = np.nan
+    with pytest.raises(ValueError, match="line 10 has a run of NaN"):
+        load_images({**good, "trace": trace, "retrace": middle})
+    short = good["trace"].copy()
+    short[MIN_LINES - 1:] = np.nan  # 15 lines scanned: fewer than the diagnosis needs
+    with pytest.raises(ValueError, match="no finite pixel"):
+        load_images({**good, "trace": short})
+    report, summary = diagnose_images({**good, "trace": trace, "retrace": retrace})
+    assert report["images"]["unscanned_lines"] == 11 and report["images"]["lines"] == 29
+    assert summary.startswith("Frame stopped early: the last 11 of 40 lines hold no scan")
 
 
 def test_gwy_channels_and_run_images_npz_load(tmp_path):

@@ -210,6 +210,24 @@ def test_ibw_asylum_layers_note_and_scan_down(tmp_path):
     assert afm.metadata["scan_rotation_deg"] == 90 and "rotated 90°" in picked
 
 
+def test_an_asylum_frame_stopped_early_loads_its_scanned_lines(tmp_path):
+    """A scan-down .ibw stopped after 18 of 24 lines: the lines never scanned hold zeros where the file
+    stores them (the top rows, in scan order the last); load_images drops them and the scan height."""
+    trace, retrace = _grating()
+    stored_t, stored_r = trace.copy(), retrace.copy()
+    stored_t[:6], stored_r[:6] = 0.0, 0.0  # stored bottom-up: a scan-down frame's last lines are the top rows
+    note = {"FastScanSize": 3.2e-7, "SlowScanSize": 2.4e-7, "ScanRate": 2.5, "ScanDown": 1}
+    path = write_ibw(tmp_path / "stopped.ibw", {"HeightTrace": stored_t, "HeightRetrace": stored_r}, note)
+    record = load_images(path)
+    assert record.shape == (18, 32) and record.unscanned_lines == 6
+    assert record.scan_size_m[1] == pytest.approx(2.4e-7 * 18 / 24)
+    np.testing.assert_allclose(record.trace, trace[::-1][:18], rtol=1e-6)
+    from afmsim.twin.measured import load_measured_pair  # the twin reads the same lines
+
+    pair = load_measured_pair(path)
+    assert pair.trace.shape == (18, 32) and pair.scan.size_m[1] == pytest.approx(2.4e-7 * 18 / 24)
+
+
 def test_nanoscope_scaling_directions_and_line_time(tmp_path):
     rng = np.random.default_rng(1)
     raw_t = rng.integers(-20000, 20000, (16, 20)).astype(np.int16)

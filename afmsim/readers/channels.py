@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Channel", "AfmFile", "ReaderError", "quantity_of", "split_direction", "to_si", "leading_number",
+__all__ = ["Channel", "AfmFile", "ReaderError", "quantity_of", "split_direction", "to_si", "leading_number", "scanned_lines",
            "TRACE_DIRECTIONS", "RETRACE_DIRECTIONS"]
 
 TRACE_DIRECTIONS = ("forward", "trace")
@@ -164,3 +164,19 @@ def split_direction(title: str) -> tuple[str, str]:
             name = re.sub(r"\s+", " ", name).strip(" -_:,")
             return name or title.strip(), direction
     return title.strip(), ""
+
+
+def scanned_lines(*images: np.ndarray, min_lines: int = 1) -> int:
+    """How many lines (rows in scan order) of a frame were scanned: trailing lines that hold a run of two
+    or more non-finite pixels, or one value throughout (a fill), in any of ``images`` are a frame
+    stopped before its end. All lines when fewer than ``min_lines`` would remain (the caller's own
+    checks then say what is wrong)."""
+    def unscanned(line: np.ndarray) -> bool:
+        bad = ~np.isfinite(line)
+        return bool(np.any(bad[1:] & bad[:-1])) or bool(bad.all()) or np.ptp(line[~bad]) == 0
+
+    total = images[0].shape[0]
+    n = total
+    while n > 0 and any(unscanned(np.asarray(image[n - 1], dtype=float)) for image in images):
+        n -= 1
+    return n if n >= min_lines else total

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from afmsim.readers import ReaderError, pick_height_pair, read_afm_files
+from afmsim.readers import ReaderError, pick_height_pair, read_afm_files, scanned_lines
 
 from .raster import RealScan
 
@@ -44,6 +44,9 @@ def load_measured_pair(path, channel: str | None = None, line_time_s: float | No
     """Read ``path``'s height trace/retrace; ``line_time_s`` (one direction, s) overrides or supplies the header's.
     ``retrace``: a second file with the other scan direction (Park writes one direction per file).
 
+    A frame stopped before its end is read up to its last scanned line, the scan height cut in
+    proportion (:func:`afmsim.readers.scanned_lines`).
+
     Raises ``ValueError`` (one line) when the file cannot be read, has one direction only, no line
     time, or non-finite heights in more than 1 % of the pixels (the rest are filled from their row).
     """
@@ -56,8 +59,9 @@ def load_measured_pair(path, channel: str | None = None, line_time_s: float | No
     if line_time is None or not line_time > 0:
         raise ValueError(f"{Path(path).name}: the file gives no line time; pass --line-time-s (one scan direction, s)")
     images = []
+    scanned = scanned_lines(trace.data, backward.data, min_lines=8)  # a frame stopped early: its scanned lines
     for channel_data in (trace, backward):
-        z = np.array(channel_data.data, dtype=np.float64)
+        z = np.array(channel_data.data[:scanned], dtype=np.float64)
         bad = ~np.isfinite(z)
         if bad.mean() > 0.01:
             raise ValueError(f"{Path(path).name}: {bad.mean():.1%} of the {channel_data.direction} heights are not finite")
@@ -67,6 +71,7 @@ def load_measured_pair(path, channel: str | None = None, line_time_s: float | No
     lines, pixels = images[0].shape
     if pixels < 32 or lines < 8:
         raise ValueError(f"{Path(path).name}: {lines}×{pixels} px is too small (need ≥ 8 lines of ≥ 32 pixels)")
-    scan = RealScan((float(trace.size_m[0]), float(trace.size_m[1])), pixels, lines, float(line_time))
+    size_y = float(trace.size_m[1]) * scanned / trace.shape[0]  # the scan height of the lines scanned
+    scan = RealScan((float(trace.size_m[0]), size_y), pixels, lines, float(line_time))
     return MeasuredPair(Path(path), images[0], images[1], scan, overscan_from_metadata(afm.metadata), picked,
                         dict(afm.metadata))

@@ -259,7 +259,8 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
     report = {
         "images": {"source": record.source, "lines": record.shape[0], "pixels": record.shape[1],
                    "scan_size_m": list(record.scan_size_m), "line_rate_hz": record.line_rate_hz,
-                   "filled_pixels": record.filled_pixels, "reference": design.kind,
+                   "filled_pixels": record.filled_pixels, "unscanned_lines": record.unscanned_lines,
+                   "reference": design.kind,
                    "train_lines": int(design.train.sum()), "heldout_lines": int(design.held.sum()),
                    "split": f"blocks of {block} lines from line 1, the 2nd and 4th of every 5 held out; line 0 "
                             "(after the approach) in neither", **({"cut": cut} if cut else {})},
@@ -285,7 +286,11 @@ def diagnose_image_record(record: ImageRecord, scenario=None, *, reference: str 
     if record.error_channel is not None:
         report["images"]["error_channel"] = record.error_channel
     report["final"]["gap_to_sensor_noise"] = _ratio(report["final"]["rms_gap"], sensor)
-    summary = (budget_text(cut) + "\n" if cut else "") + image_summary(report)
+    unscanned = (f"Frame stopped early: the last {record.unscanned_lines} of "
+                 f"{record.shape[0] + record.unscanned_lines} lines hold no scan (NaN or one fill value); diagnosed "
+                 f"the {record.shape[0]} scanned, the scan height cut to {record.scan_size_m[1] * 1e6:.4g} µm.\n"
+                 if record.unscanned_lines else "")
+    summary = unscanned + (budget_text(cut) + "\n" if cut else "") + image_summary(report)
     if figure_path is not None:
         plot_image_diagnosis(design, base, att.final, figure_path,
                              title=f"{report['status']}: " + (", ".join(outcome["verdict"]) or "no effect named"))

@@ -30,9 +30,12 @@ pixels). The diagnosis simulates every sample of the frame: 256 × 256 takes 45 
 256 × 512 110 s and 4.3 GB, 512 × 512 took 8.5 min and 8.5 GB (2-CPU machine), so a 1,024 × 1,024
 file would not finish.
 
-Every problem raises :class:`ValueError` with one line naming the field. Isolated non-finite
-pixels (no neighbour along the line also bad) are filled by linear interpolation along the line;
-runs of two or more, or a bad first/last pixel, are refused.
+Every problem raises :class:`ValueError` with one line naming the field. A frame stopped before its
+end (the last lines NaN, cut short by a NaN run, or one constant fill value, as instruments store
+lines never scanned) is diagnosed on the lines it scanned, the scan height cut in proportion
+(``ImageRecord.unscanned_lines``). Isolated non-finite pixels (no neighbour along the line also
+bad) are filled by linear interpolation along the line; runs of two or more elsewhere, or a bad
+first/last pixel, are refused.
 """
 
 from __future__ import annotations
@@ -41,6 +44,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+
+from afmsim.readers.channels import scanned_lines
 
 __all__ = ["ImageRecord", "load_images", "within_budget", "MIN_LINES", "MIN_PIXELS", "MAX_LINES", "MAX_PIXELS"]
 
@@ -82,6 +87,9 @@ class ImageRecord:
         ``.npz`` keys of the same names); non-finite pixels are left as they are. None when absent.
     error_channel : str or None
         Its name and unit (``"Amplitude (V)"``).
+    unscanned_lines : int
+        Lines at the end of the file's frame that were never scanned (a scan stopped early: NaN or
+        a constant fill), dropped with their share of the scan height.
     """
 
     trace: np.ndarray
@@ -95,6 +103,7 @@ class ImageRecord:
     error_trace: np.ndarray | None = field(default=None, repr=False)
     error_retrace: np.ndarray | None = field(default=None, repr=False)
     error_channel: str | None = None
+    unscanned_lines: int = 0
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -154,12 +163,18 @@ def _validate(cols: dict, source: str, picked: str | None = None) -> ImageRecord
         shown = [float(f"{v:.12g}") for v in rate.tolist()]  # a rate read back from a line time, unrounded
         raise ValueError(f"line_rate_hz must be one number in (0, 10000] Hz, got {shown}")
     offset = _pair("scan_offset_m", cols["scan_offset_m"]) if cols.get("scan_offset_m") is not None else None
+    errors = _error_pair(cols, trace.shape)
+    scanned = scanned_lines(trace, retrace, min_lines=MIN_LINES)
+    if scanned < ny:  # a frame stopped early: the lines never scanned go, the scan height with them
+        trace, retrace = trace[:scanned], retrace[:scanned]
+        errors = tuple(e[:scanned] if isinstance(e, np.ndarray) else e for e in errors)
+        size = (size[0], size[1] * scanned / ny)
     trace, n_t = _fill_isolated("trace", trace)
     retrace, n_r = _fill_isolated("retrace", retrace)
     if np.ptp(trace) == 0 or np.ptp(retrace) == 0:
         raise ValueError("trace or retrace is flat: there is no topography to diagnose")
-    errors = _error_pair(cols, trace.shape)
-    return ImageRecord(trace, retrace, size, float(rate[0]), offset, source, n_t + n_r, picked, *errors)
+    return ImageRecord(trace, retrace, size, float(rate[0]), offset, source, n_t + n_r, picked, *errors,
+                       unscanned_lines=ny - scanned)
 
 
 def _error_pair(cols: dict, shape: tuple[int, int]) -> tuple:
