@@ -151,6 +151,8 @@ def test_the_error_signal_holds_its_setpoint_and_sits_at_minus_the_setpoint_whil
     np.testing.assert_allclose(off, -feedback.setpoint_m, atol=5 * feedback.deflection_noise_m)
     assert error[400 + fall_samples + 20:].mean() == pytest.approx(0.0, abs=0.05 * NM)
     assert abs(error[300:399].mean()) < 0.05 * NM and error[100:103].max() > 50 * NM  # 399 spans the step
+    with pytest.raises(ValueError, match="error must be a contiguous float64 array of shape"):
+        track_surface(surface, fs, ZStage(), feedback, np.random.default_rng(2), error=np.empty(10))
 
 
 # ----------------------------------------------------------------------------------------------

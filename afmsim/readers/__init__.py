@@ -1,6 +1,6 @@
 """Reading real AFM files: every channel of a vendor file, in SI units, with its scan direction.
 
-    from afmsim.readers import read_afm_file, pick_height_pair
+    from afmsim.readers import read_afm_file, pick_height_pair, pick_error_pair
     afm = read_afm_file("circles.nid")                 # AfmFile: format, channels, metadata
     trace, retrace, picked = pick_height_pair(afm)     # the topography's forward/backward scans
     error = pick_error_pair(afm, trace.shape)           # the Z loop's error signal beside it, or None

@@ -178,6 +178,9 @@ def track_surface(surface_m: np.ndarray, sample_rate_hz: float, stage: ZStage, f
                          f"raise numerics loop rate or lower ki")
     noise = rng.normal(0.0, feedback.deflection_noise_m, surface.size)
     out = np.empty_like(surface)
+    if error is not None and (error.shape != surface.shape or error.dtype != np.float64 or not error.flags.c_contiguous):
+        raise ValueError(f"error must be a contiguous float64 array of shape {surface.shape}, "
+                         f"got {error.dtype} {error.shape}")
     err = error if error is not None else np.empty_like(surface)
     # The stage is calibrated (as users do on a step standard) so that its small-signal slope
     # S_true·(1 − A) equals the nominal sensitivity that converts the drive into height.
