@@ -303,7 +303,7 @@ def _print_summary(metrics: dict) -> None:
 def diagnose(
     measured: Path = typer.Option(..., "--measured", help="Measured data: a loop record CSV (t_s,v_V,x_m[,y_m]), or "
                                                           "trace/retrace images: .npz (trace, retrace, scan_size_m, "
-                                                          "line_rate_hz; or a run's images.npz), .gwy, or an "
+                                                          "line_rate_hz; or a run's images.npz or folder), .gwy, or an "
                                                           "instrument file (.nid, .ibw, .spm, .000-.999, .jpk, "
                                                           "Park .tiff: the topography's forward/backward scans, scan "
                                                           "size and line time from the file)."),
@@ -333,6 +333,10 @@ def diagnose(
     from afmsim.readers import reader_for
     from afmsim.runio import default_run_dir, run_folder, write_json
 
+    if measured.is_dir():  # a run folder: its images
+        if not (measured / "images.npz").is_file():
+            _fail(f"{measured} is a folder without images.npz: give a loop record, an image file or an afmsim run folder")
+        measured = measured / "images.npz"
     images = reader_for(measured) is not None
     if retrace is not None and not images:
         _fail(f"--retrace goes with an image file, not with {measured.name}")

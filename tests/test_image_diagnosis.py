@@ -220,6 +220,15 @@ def test_cli_diagnoses_images_and_refuses_bad_ones(z_case, tmp_path):
     assert len(result.output.strip().splitlines()) == 1
     result = runner.invoke(app, ["validate-diagnosis", "--kind", "pictures"])
     assert result.exit_code == 2 and "--kind" in result.output
+    run = tmp_path / "run"  # a run folder stands for its images.npz
+    run.mkdir()
+    result = runner.invoke(app, ["diagnose", "--measured", str(run), "--out", str(tmp_path / "nope")])
+    assert result.exit_code == 2 and "a folder without images.npz" in result.output
+    np.savez(run / "images.npz", trace_none=arrays["trace"], retrace_none=arrays["retrace"],
+             image_pixel_size_m=[1e-7, 1e-7])  # no scenario.yaml beside it: no line rate
+    result = runner.invoke(app, ["diagnose", "--measured", str(run), "--out", str(tmp_path / "nope")])
+    assert result.exit_code == 2 and "images.npz: line rate unknown" in result.output, result.output
+    assert not (tmp_path / "nope").exists()
 
 
 def test_small_image_validation():
