@@ -64,12 +64,19 @@ def test_nsl2_csv_per_experiment_rows(run_dir):
 def test_gwy_round_trip(run_dir):
     channels = read_gwy(run_dir / "images.gwy")
     expected = [f"{d} {c}" for c in CONTROLLERS for d in ("trace", "retrace")] + ["topography"]
+    expected += [f"error {d} {c}" for c in CONTROLLERS for d in ("trace", "retrace")]
     assert list(channels) == expected
     with np.load(run_dir / "images.npz") as arrays:
         for c in CONTROLLERS:
             assert channels[f"trace {c}"].shape == (32, 32)
             np.testing.assert_array_equal(channels[f"retrace {c}"].z, arrays[f"retrace_{c}"])
+            np.testing.assert_array_equal(channels[f"error retrace {c}"].z, arrays[f"error_retrace_{c}"])
         assert channels["topography"].shape == arrays["truth"].shape
+    from afmsim.diagnosis import load_images  # the diagnosis reads the error images from the .gwy too
+
+    record = load_images(run_dir / "images.gwy", channel=CONTROLLERS[1], line_rate_hz=1.0)
+    with np.load(run_dir / "images.npz") as arrays:
+        np.testing.assert_array_equal(record.error_trace, arrays[f"error_trace_{CONTROLLERS[1]}"])
 
 
 def test_paper_figures_written(run_dir):
@@ -233,7 +240,8 @@ def test_gwy_holds_every_experiment_with_line_rate_and_scenario(tmp_path):
     channels = read_gwy(tmp_path / "images.gwy")
     assert list(channels) == ["trace none", "retrace none", "trace spi", "retrace spi",
                               "trace none (experiment 2)", "retrace none (experiment 2)",
-                              "trace spi (experiment 2)", "retrace spi (experiment 2)", "topography"]
+                              "trace spi (experiment 2)", "retrace spi (experiment 2)", "topography",
+                              "error trace none", "error retrace none", "error trace spi", "error retrace spi"]
     assert not np.array_equal(channels["trace spi"].z, channels["trace spi (experiment 2)"].z)  # fresh noise
     meta = GwyObject.fromfile(str(tmp_path / "images.gwy"))["/4/meta"]
     assert float(meta["line rate (Hz)"]) == 2.0 and meta["scenario"] == "two"

@@ -11,6 +11,7 @@ import yaml
 
 from afmsim.experiment import ScenarioResult
 from afmsim.runio import git_revision, versions, write_json
+from afmsim.samples.heightmap import HeightMap
 from afmsim.workers import ordered_map, worker_pool
 
 from .document import best_controller, write_report
@@ -28,9 +29,11 @@ __all__ = ["write_run", "gwy_channels", "RENDER_CHOICES"]
 RENDER_CHOICES = ("none", "key", "all")
 
 
-def gwy_channels(frames: list, truth) -> dict:
+def gwy_channels(frames: list, truth, errors: dict | None = None) -> dict:
     """The ``images.gwy`` channels: "trace <c>", "retrace <c>" per controller of experiment 1, the
-    same with " (experiment k)" for the other experiments, then "topography"."""
+    same with " (experiment k)" for the other experiments, "topography", then experiment 1's
+    deflection (error) images "error trace <c>", "error retrace <c>" from ``errors`` (controller →
+    (trace, retrace) HeightMaps, m; after the rest, so the other channels keep their numbers)."""
     channels = {}
     for k, images in enumerate(frames, 1):
         suffix = "" if k == 1 else f" (experiment {k})"
@@ -38,6 +41,9 @@ def gwy_channels(frames: list, truth) -> dict:
             channels[f"trace {name}{suffix}"] = trace
             channels[f"retrace {name}{suffix}"] = retrace
     channels["topography"] = truth
+    for name, (trace, retrace) in (errors or {}).items():
+        channels[f"error trace {name}"] = trace
+        channels[f"error retrace {name}"] = retrace
     return channels
 
 
@@ -171,5 +177,8 @@ def _write_arrays(result: ScenarioResult, folder: Path, scenario_yaml: str) -> l
     if result.images:
         meta = {"line rate (Hz)": repr(float(result.scenario.scan.line_rate_hz)),
                 "scenario": result.scenario.name, "scenario (YAML)": scenario_yaml}
-        written.append(write_gwy(folder / "images.gwy", gwy_channels(frames, result.truth), meta=meta))
+        errors = {name: tuple(HeightMap(e, im.trace.pixel_size, im.trace.origin)
+                              for e in (im.error_trace, im.error_retrace))
+                  for name, im in result.images.items() if im.error_trace is not None}
+        written.append(write_gwy(folder / "images.gwy", gwy_channels(frames, result.truth, errors), meta=meta))
     return written

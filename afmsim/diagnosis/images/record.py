@@ -219,9 +219,10 @@ def _own_pair(afm, channel: str | None) -> tuple:
 
 def _own_error_pair(afm, trace) -> tuple | None:
     """The error signal beside afmsim's own height pair: a run's ``error_trace_<controller>`` pair
-    (deflection channels of the controller's name), a plain ``.npz``'s ``error_trace``/``error_retrace``."""
-    name = "error" if trace.name == "height" else trace.name
-    pair = {c.direction: c for c in afm.channels if c.quantity == "deflection" and c.name == name
+    (``images.npz``: deflection channels of the controller's name; ``images.gwy``: "error trace <c>",
+    read as "error <c>"), a plain ``.npz``'s ``error_trace``/``error_retrace``."""
+    names = ("error",) if trace.name == "height" else (trace.name, f"error {trace.name}")
+    pair = {c.direction: c for c in afm.channels if c.quantity == "deflection" and c.name in names
             and c.shape == trace.shape}
     return (pair["trace"], pair["retrace"]) if {"trace", "retrace"} <= set(pair) else None
 
