@@ -304,7 +304,7 @@ def diagnose(
     measured: Path = typer.Option(..., "--measured", help="Measured data: a loop record CSV (t_s,v_V,x_m[,y_m]), or "
                                                           "trace/retrace images: .npz (trace, retrace, scan_size_m, "
                                                           "line_rate_hz; or a run's images.npz or folder), .gwy, or an "
-                                                          "instrument file (.nid, .ibw, .spm, .000-.999, .jpk, "
+                                                          "instrument file (.nid, .ibw, .spm, .000-.999, .sxm, .jpk, "
                                                           "Park .tiff: the topography's forward/backward scans, scan "
                                                           "size and line time from the file)."),
     retrace: Optional[Path] = typer.Option(None, "--retrace", help="Images: a second instrument file with the other "
@@ -375,8 +375,8 @@ def diagnose(
 
 @app.command()
 def inspect(
-    file: Path = typer.Argument(..., help="An AFM file: .nid, .gwy, .ibw, .spm, .000-.999, .jpk, Park .tiff or "
-                                          "afmsim's .npz."),
+    file: Path = typer.Argument(..., help="An AFM file: .nid, .gwy, .ibw, .spm, .000-.999, Nanonis .sxm, .jpk, "
+                                          "Park .tiff or afmsim's .npz."),
     as_json: bool = typer.Option(False, "--json", help="Print JSON: {format, channels: [{name, direction, quantity, "
                                                        "unit, shape, size_m, line_time_s}], picked}."),
 ):

@@ -3,8 +3,8 @@ the height pair; ``afmsim inspect``; ``diagnose --measured`` on vendor files; ba
 
 Fixture files are made in ``tmp_path`` by ``vendor_files`` (beside this file): ``.gwy`` with
 ``gwyfile``, ``.ibw`` with ``igorwriter``, Park ``.tiff`` and JPK ``.jpk`` with ``tifffile`` (maintained
-writers); no maintained package writes Nanoscope files, so ``write_nanoscope`` builds a minimal
-binary one from the format's header layout. The real Nanosurf files come from
+writers); no maintained package writes Nanoscope or Nanonis files, so ``write_nanoscope`` and
+``write_sxm`` build minimal binary ones from the formats' layouts. The real Nanosurf files come from
 ``../shared/real-data/afm`` (tests skip without it).
 """
 
@@ -21,7 +21,7 @@ import afmsim.readers as readers
 from afmsim.readers import ReaderError, pick_height_pair, read_afm_file
 from afmsim.readers.channels import quantity_of, split_direction, to_si
 
-from vendor_files import write_gwy, write_ibw, write_jpk, write_nanoscope, write_park
+from vendor_files import write_gwy, write_ibw, write_jpk, write_nanoscope, write_park, write_sxm
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real-data" / "afm"
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="../shared/real-data/afm not present")
@@ -331,6 +331,67 @@ def test_park_forward_and_backward_files_diagnose_as_one_pair(tmp_path):
     csv.write_text("t_s,v_V,x_m\n0,0,0\n")
     wrong = runner.invoke(app, ["diagnose", "--measured", str(csv), "--retrace", str(bwd), "--out", str(tmp_path / "w")])
     assert wrong.exit_code == 2 and "--retrace goes with an image file" in wrong.output
+
+
+def test_nanonis_sxm_channels_directions_rows_and_line_times(tmp_path):
+    rng = np.random.default_rng(6)
+    z, z_back, amp = (rng.normal(0, 1e-8, (6, 10)) for _ in range(3))
+    for scan_dir, kind in (("up", "FLOAT MSBFIRST"), ("down", "FLOAT LSBFIRST")):
+        path = write_sxm(tmp_path / f"scan_{scan_dir}.sxm", [("Z", "m", "both", [z, z_back]),
+                                                           ("Amplitude", "V", "forward", [amp])],
+                         range_m=(2e-6, 1.2e-6), scan_time_s=(0.25, 0.3), scan_dir=scan_dir, scanit_type=kind)
+        afm = read_afm_file(path)
+        assert afm.format == "nanonis" and afm.metadata["slow_scan"] == scan_dir
+        assert [(c.name, c.direction, c.quantity, c.unit) for c in afm.channels] == [
+            ("Z", "forward", "height", "m"), ("Z", "backward", "height", "m"), ("Amplitude", "forward", "amplitude", "V")]
+        f32 = lambda a: a.astype(np.float32).astype(float)  # noqa: E731 - the file's precision
+        np.testing.assert_array_equal(afm.channels[0].data, f32(z))  # rows as stored = as scanned, up or down
+        np.testing.assert_array_equal(afm.channels[1].data, f32(z_back)[:, ::-1])  # stored right → left
+        assert [c.line_time_s for c in afm.channels] == pytest.approx([0.25, 0.3, 0.25])  # each direction its own
+        assert afm.channels[0].size_m == pytest.approx((2e-6, 1.2e-6))
+    trace, retrace, picked = pick_height_pair(afm)
+    assert picked.startswith("scan_down.sxm: picked 'Z' forward/backward") and retrace.direction == "backward"
+
+
+def test_nanonis_sxm_refusals_are_one_line(tmp_path):
+    good = write_sxm(tmp_path / "good.sxm", [("Z", "m", "both", [np.zeros((4, 5)), np.ones((4, 5))])]).read_bytes()
+    cases = {"foreign.sxm": (b"P3\n5 4\n" + good[20:], "not a Nanonis scan file"),
+             "no_end.sxm": (good[:good.index(b":SCANIT_END:")], "no :SCANIT_END:"),  # pySPM would read on forever
+             "no_mark.sxm": (good[:good.index(b"\x1a\x04")], "no data marker"),
+             "cut.sxm": (good[:-7], r"truncated Nanonis file \(\d+ bytes, its 2 images need \d+\)"),
+             "double.sxm": (good.replace(b"FLOAT MSBFIRST", b"DOUBLE MSBFIRST"), "DOUBLE MSBFIRST.*only FLOAT")}
+    for name, (content, words) in cases.items():
+        path = tmp_path / name
+        path.write_bytes(content)
+        with pytest.raises(ReaderError, match=words) as info:
+            read_afm_file(path)
+        assert "\n" not in str(info.value) and str(info.value).startswith(name)
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["diagnose", "--measured", str(tmp_path / "cut.sxm"), "--out", str(out)])
+    assert result.exit_code == 2 and result.output.count("\n") == 1 and not out.exists()
+
+
+def test_nanonis_sxm_pair_diagnoses_and_a_stopped_frame_keeps_its_scanned_lines(tmp_path):
+    trace, retrace = _grating(lines=20, points=32)
+    path = write_sxm(tmp_path / "grating.sxm", [("Z", "m", "both", [trace, retrace[:, ::-1]]),
+                                                ("Current", "A", "both", [trace * 0, trace * 0])],
+                     range_m=(3.2e-6, 2.0e-6), scan_time_s=(0.5, 0.5))
+    listing = json.loads(runner.invoke(app, ["inspect", str(path), "--json"]).output)
+    assert listing["format"] == "nanonis" and listing["channels"][1]["direction"] == "backward"
+    out = tmp_path / "run"
+    result = runner.invoke(app, ["diagnose", "--measured", str(path), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert result.output.splitlines()[0].startswith("grating.sxm: picked 'Z' forward/backward")
+    record = load_images(path)
+    np.testing.assert_allclose(record.retrace, retrace.astype(np.float32), rtol=1e-6)
+    assert record.scan_size_m == pytest.approx((3.2e-6, 2.0e-6)) and record.line_rate_hz == pytest.approx(1.0)
+    trace, retrace = _grating(lines=24, points=32)
+    stopped = [trace.copy(), retrace[:, ::-1].copy()]
+    for image in stopped:
+        image[18:] = np.nan  # how Nanonis stores the lines of a frame stopped before its end
+    record = load_images(write_sxm(tmp_path / "stopped.sxm", [("Z", "m", "both", stopped)], range_m=(3.2e-6, 2.4e-6)))
+    assert record.shape == (18, 32) and record.unscanned_lines == 6
+    assert record.scan_size_m[1] == pytest.approx(2.4e-6 * 18 / 24)
 
 
 def test_nanoscope_32_bit_layers(tmp_path):

@@ -1,7 +1,8 @@
 """Vendor AFM files written for the tests: Gwyddion ``.gwy`` (``gwyfile``), Asylum ``.ibw``
 (``igorwriter``), Park Systems TIFF and JPK image scans (``tifffile``, the private tags laid out as
-the readers' documentation — ``pspylib``, ``SurfaceTopography``, AFMReader — describes them), and a
-minimal binary Nanoscope file built from the format's header layout (no maintained writer exists)."""
+the readers' documentation — ``pspylib``, ``SurfaceTopography``, AFMReader — describes them), and
+minimal binary Nanoscope and Nanonis ``.sxm`` files built from the formats' layouts (no maintained
+writer exists for either)."""
 
 import struct
 
@@ -116,4 +117,25 @@ def write_nanoscope(path, layers, *, size_um=5.0, rate_hz=1.0, frame="Up", zsens
     header = ("\r\n".join(head + ["\\*File list end"]) + "\r\n").encode("latin-1")
     data = b"".join(np.asarray(img, dtype=f"<i{bytes_per_pixel}").tobytes() for _, _, img in layers)
     path.write_bytes(header + b"\x1a" * (offset - len(header)) + data)
+    return path
+
+
+def write_sxm(path, channels, *, range_m=(5e-6, 4e-6), scan_time_s=(0.5, 0.6), scan_dir="up", angle_deg=0.0,
+              scanit_type="FLOAT MSBFIRST"):
+    """A Nanonis ``.sxm`` file laid out as Gwyddion's ``nanonis`` module and ``pySPM`` read it: ``:TAG:``
+    header lines, ``:SCANIT_END:``, the bytes 0x1a 0x04, then for each ``(name, unit, direction, images)``
+    of ``channels`` (direction ``both``: images = [forward, backward as stored, right → left]) its
+    (lines, pixels) images as 32-bit floats in the byte order ``scanit_type`` names."""
+    lines, points = channels[0][3][0].shape
+    head = [":NANONIS_VERSION:", "2", ":SCANIT_TYPE:", f"              {scanit_type}", ":REC_DATE:", " 01.01.2024",
+            ":REC_TIME:", "10:00:00", ":SCAN_PIXELS:", f"       {points}       {lines}",
+            ":SCAN_TIME:", "             {:.3E}             {:.3E}".format(*scan_time_s),
+            ":SCAN_RANGE:", "           {:.6E}           {:.6E}".format(*range_m),
+            ":SCAN_OFFSET:", "             0.000000E+0         0.000000E+0", ":SCAN_ANGLE:", f"            {angle_deg:.3E}",
+            ":SCAN_DIR:", scan_dir, ":DATA_INFO:", "\tChannel\tName\tUnit\tDirection\tCalibration\tOffset"]
+    head += [f"\t{14 + k}\t{name}\t{unit}\t{direction}\t1.000E+0\t0.000E+0" for k, (name, unit, direction, _) in enumerate(channels)]
+    head += ["", ":SCANIT_END:", "", ""]
+    order = ">f4" if scanit_type.endswith("MSBFIRST") else "<f4"
+    data = b"".join(np.asarray(image, order).tobytes() for *_, images in channels for image in images)
+    path.write_bytes("\n".join(head).encode("ascii") + b"\x1a\x04" + data)
     return path

@@ -7,7 +7,7 @@
 
 Formats and the maintained package that reads each: Nanosurf ``.nid`` (``nsfopen``), Gwyddion
 ``.gwy`` (``gwyfile``), Asylum/Igor ``.ibw`` (``igor2``), Bruker/Veeco Nanoscope ``.spm`` and
-``.000``–``.999`` (``pySPM``), Park Systems ``.tiff``/``.tif`` and JPK ``.jpk``
+``.000``–``.999`` and Nanonis ``.sxm`` (``pySPM``), Park Systems ``.tiff``/``.tif`` and JPK ``.jpk``
 (``SurfaceTopography``), afmsim's own ``.npz`` (numpy). Each module documents how it finds line
 order, direction, units and line time in its format (:mod:`.channels` states the common
 conventions). A Park file holds one scan direction: :func:`read_afm_files` reads a forward file and
@@ -28,14 +28,15 @@ from .jpk import read_jpk
 from .nid import read_nid
 from .npz import read_npz
 from .park import read_park
+from .sxm import read_sxm
 from .pick import pick_error_pair, pick_height_pair
 
 __all__ = ["read_afm_file", "read_afm_files", "pick_height_pair", "pick_error_pair", "AfmFile", "Channel", "ReaderError",
            "reader_for", "FORMATS", "channel_listing", "format_listing", "scanned_lines"]
 
-FORMATS = ".nid, .gwy, .ibw, .spm, .000–.999, .tiff/.tif (Park), .jpk, .npz"
+FORMATS = ".nid, .gwy, .ibw, .spm, .000–.999, .sxm, .tiff/.tif (Park), .jpk, .npz"
 _READERS = {".nid": read_nid, ".gwy": read_gwy_file, ".ibw": read_ibw, ".npz": read_npz, ".tiff": read_park,
-            ".tif": read_park, ".jpk": read_jpk}
+            ".tif": read_park, ".jpk": read_jpk, ".sxm": read_sxm}
 
 
 def reader_for(path) -> callable | None:
