@@ -143,6 +143,13 @@ def test_real_record():
     assert flagged <= set(rep["verdict"]) and not flagged & set(rep["findings"])
     if rep["status"] in ("partly_explained", "unexplained"):
         assert rep["unexplained"]["gap_to_noise"] > 2.0 and "time" in rep["unexplained"]["where"]
+    # the 3.26 s at 0 V before the drive's first step measure the sensor's whole noise: coloured (more
+    # than the white floor), yet the remainder at the drive's frequencies is well above it there
+    rest = rep["baseline"]["rest_noise"]
+    assert rest["duration_s"] == pytest.approx(3.257, abs=0.01) and rest["coloured"]
+    band = rest["against"]["bands"]["excitation_band"]
+    assert rest["against"]["gap_to_rest_noise"] > 1.0 and band["remainder_rms"] > 2.0 * band["rest_rms"]
+    assert "Noise at rest: the sensor reads" in summary
 
 
 def test_spreadsheet_exports_load_like_the_plain_csv(tmp_path):

@@ -27,7 +27,9 @@ Protocol of :func:`diagnose_loops`:
    that effect only;
 5. status (``nothing_missing``/``explained``/``partly_explained``/``unexplained``), implausible
    parameters and the unexplained remainder, as the engine defines them
-   (:func:`~afmsim.diagnosis.engine.conclude`).
+   (:func:`~afmsim.diagnosis.engine.conclude`);
+6. where the record starts at rest, the sensor's whole noise read there and the baseline's gap
+   beside it, band by band (:mod:`~afmsim.diagnosis.loops.rest`; reported, not used for the status).
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from .coupling import coupling_output, coupling_text
 from .minor_loop import minor_loop_law
 from .model import N_LEVELS, Design, FittedModel, ModelSpec, fit_model
 from .record import LoopRecord, load_record
+from .rest import against_rest, rest_noise, rest_text
 
 __all__ = ["diagnose_loops", "diagnose_record", "choose_split", "LoopFront"]
 
@@ -230,6 +233,7 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
     spread_to_noise = rms(spread) / sigma if sigma > 0 else None
     _read_prior_dependence(outcome["unexplained"], spread_to_noise, front.kind)
     _read_untrained_split(outcome["unexplained"], split)
+    rest = rest_noise(rec, sigma)
     report = {
         "record": {"source": rec.source, "samples": n, "sample_interval_s": rec.dt, "decimation": rec.decimation,
                    "duration_s": float(rec.t[-1] - rec.t[0]),
@@ -248,7 +252,9 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                      "heldout_scoring": scoring, "drive_polarity": int(d.polarity),
                      "prior_spread_to_noise": None if spread_to_noise is None else round(spread_to_noise, 3),
                      "prior_dependent_share": round(float(np.mean(spread > sigma)), 4),
-                     "travel": float(np.ptp(rec.x)), "modelled": list(modelled)},
+                     "travel": float(np.ptp(rec.x)), "modelled": list(modelled),
+                     "rest_noise": None if rest is None else {**rest.as_dict(),
+                                                              "against": against_rest(rest, rec.v, r_base[held])}},
         "where": front.localise(base),
         "effects": [att.evaluations[c] for c in avail if c in att.evaluations],
         "verdict": outcome["verdict"],
@@ -325,6 +331,8 @@ def loop_summary(rep: dict) -> str:
              f"({100 * b['rms_gap'] / (b['travel'] or 1):.2f} % of travel; noise floor {b['noise_floor'] * 1e9:.1f} nm, "
              f"gap {ratio_text(b['gap_to_noise'])} the noise)."]
     lines.append("Where: " + where_text(rep["where"]))
+    if b.get("rest_noise"):
+        lines.append(rest_text(b["rest_noise"]))
     if b.get("drive_polarity", 1) < 0:
         lines.append("Polarity: the displacement falls as the drive rises (a sensor or axis mounted the other way "
                      "round); the hysteresis is fitted with that sign.")
