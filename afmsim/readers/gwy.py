@@ -7,7 +7,8 @@ Every ``/N/data`` data field becomes a channel; its title carries name and direc
 pair. Units from the fields' ``si_unit_z``/``si_unit_xy``; ``xoff``/``yoff`` give ``Channel.offset_m``.
 Rows as stored: a ``.gwy`` keeps no slow-scan direction, so row 0 is taken as the first line
 scanned (true for files ``afmsim`` writes; a file converted by Gwyddion from another format may
-have been flipped by the import). Line time from the channel's metadata (``/N/meta``) where an
+have been flipped by the import — its ``nanonis`` module reverses an upward frame — and read
+backwards in time the stage's slow axis fits no model: docs/diagnosis.md, "Line order matters"). Line time from the channel's metadata (``/N/meta``) where an
 import kept it: ``Time/Line`` or ``Line time`` (one direction, as Nanosurf), else ``Scan rate``/
 ``ScanRate`` (Hz, trace + retrace lines per second, as Bruker and Asylum: ``1 / (2 · rate)``).
 
