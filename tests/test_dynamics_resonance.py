@@ -80,6 +80,7 @@ def test_ringing_steps_are_named_dynamics_with_their_resonance(seed, f0):
     assert 0.005 < params["damping_ratio"] < 0.08
     # the held-out gap shrinks by most of itself: ringing is what was missing
     assert rep["final"]["heldout_shrink"] > 0.5
+    assert rep["caveats"] == [] and "Caveat" not in summary  # a resonance is no rate-dependent width
 
 
 def test_a_lag_without_a_mode_gets_no_resonance():
@@ -89,6 +90,10 @@ def test_a_lag_without_a_mode_gets_no_resonance():
     params = {e["name"]: e for e in rep["effects"]}["dynamics"]["params"]
     assert "resonance_hz" not in params
     assert params["lag_time_constant_s"] == pytest.approx(1 / (2 * np.pi * 150.0), rel=0.2)
+    # a lag alone is, to first order, what a loop width growing with the rate does: the report says so
+    (caveat,) = rep["caveats"]
+    assert caveat["kind"] == "lag_only" and caveat["lag_time_constant_s"] == params["lag_time_constant_s"]
+    assert "cannot tell the two apart" in summary
 
 
 def test_a_lightly_damped_mode_behind_a_pole_beyond_nyquist_is_found_and_takes_most_of_the_gap():

@@ -266,6 +266,10 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
     }
     if rec.y is not None:
         report["cross_coupling_output"] = coupling_output(rec.t, rec.x, rec.y, train)
+    lag = _lag_only(report)
+    report["caveats"] = [] if lag is None else [
+        {"effect": "dynamics", "kind": "lag_only", "lag_time_constant_s": lag,
+         "alike": "a loop width that grows with the drive rate (rate-dependent hysteresis, not a candidate)"}]
     summary = loop_summary(report)
     if figure_path is not None:
         plot_diagnosis(rec, r_base, front.residual(att.final), held, figure_path,
@@ -352,11 +356,34 @@ def loop_summary(rep: dict) -> str:
                      f"{rep['record']['train_fraction']:.0%} the states of the rest tests the model fairly.")
     lines += effect_lines(rep["effects"])
     lines.append(verdict_text(rep, where_text))
+    for caveat in rep.get("caveats", []):
+        lines.append(f"Caveat: dynamics is named as a lag alone (τ = {caveat['lag_time_constant_s'] * 1e3:.3g} ms, no "
+                     "resonance): to first order "
+                     "a loop whose width grows with the drive rate (rate-dependent hysteresis, not a candidate) "
+                     "offsets a loop the same way, and this record cannot tell the two apart; a drive that rings "
+                     "the stage (a step, a fast reversal) would.")
     if "cross_coupling_output" in rep:
         lines.append("Cross-coupling x → y: " + coupling_text(rep["cross_coupling_output"]))
     if "minor_loop_law" in rep:
         lines.append("Minor-loop law: " + rep["minor_loop_law"]["note"])
     return "\n".join(lines)
+
+
+def _lag_only(rep: dict) -> float | None:
+    """The lag time constant (s) of a dynamics finding without a resonance, else None.
+
+    A first-order lag offsets a loop by −τ·ẋ; a loop width that grows with the drive rate by a term
+    proportional to the rate as well, building up after a reversal as the loop's slope does. A
+    velocity column fitted in the lag's place fitted true lag-only dynamics records as well as the
+    lag, and the rate-width distractor worse (development seeds 1–6, docs/diagnosis.md, "Probe of
+    2026-12-06"): one record does not tell them apart, so a lag-only finding says so."""
+    if "dynamics" not in rep["findings"]:
+        return None
+    kept = rep["final"].get("findings_only", {}).get("params", {})  # the findings' own fit, where it differs
+    params = kept.get("dynamics") or next((e["params"] for e in rep["effects"] if e["name"] == "dynamics"), {})
+    if "resonance_hz" in params:
+        return None
+    return params.get("lag_time_constant_s")
 
 
 def plot_diagnosis(rec: LoopRecord, r_before, r_after, held, path, *, title="") -> Path:
