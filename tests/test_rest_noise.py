@@ -37,6 +37,8 @@ def test_rest_noise_is_the_sensor_reading_before_the_drive_moves():
     assert rest_noise(load_record(_record(rng, rest_s=0.0)), 2e-9) is None  # moving from the first sample
     short = (MIN_REST_SAMPLES - 10) / FS
     assert rest_noise(load_record(_record(rng, rest_s=short)), 2e-9) is None
+    t, v, x = _record(rng, white=0.0)  # a sensor that reads nothing at rest sets no noise there
+    assert rest_noise(load_record((t, v, np.round(x, 8))), 2e-9) is None
 
 
 def test_against_rest_separates_the_sensor_noise_from_a_drive_locked_remainder():

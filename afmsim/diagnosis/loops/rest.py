@@ -75,7 +75,8 @@ class RestNoise:
 
 def rest_noise(rec: LoopRecord, sigma: float) -> RestNoise | None:
     """The noise the record reads before its drive first moves (see the module notes), or None
-    where it starts moving within :data:`MIN_REST_SAMPLES` samples or never. ``sigma``: the white σ (m)."""
+    where it starts moving within :data:`MIN_REST_SAMPLES` samples or never, or reads no noise at all
+    there (a sensor quantised coarser than its noise). ``sigma``: the white σ (m), > 0."""
     span = float(np.ptp(rec.v))
     moved = np.flatnonzero(np.abs(rec.v - rec.v[0]) > REST_TOLERANCE * span)
     n = int(moved[0]) if moved.size else 0
@@ -84,7 +85,9 @@ def rest_noise(rec: LoopRecord, sigma: float) -> RestNoise | None:
     t, x = rec.t[:n] - rec.t[0], rec.x[:n]
     deviation = x - np.polyval(np.polyfit(t, x, 1), t)
     rms = float(np.sqrt(np.mean(deviation**2)))
-    return RestNoise(deviation, rec.dt, rms / sigma if sigma > 0 else float("inf"))
+    if not rms > 1e-6 * float(np.ptp(rec.x)) or not sigma > 0:
+        return None
+    return RestNoise(deviation, rec.dt, rms / sigma)
 
 
 def _band_rms(signal: np.ndarray, dt: float, nperseg: int, edges: tuple[float, float]) -> dict[str, float]:
@@ -107,7 +110,7 @@ def against_rest(rest: RestNoise, v: np.ndarray, residual: np.ndarray) -> dict:
     remainder = _band_rms(residual, rest.dt, nperseg, edges)
     noise = _band_rms(rest.deviation, rest.dt, nperseg, edges)
     gap = float(np.sqrt(np.mean(residual**2)))
-    return {"gap_to_rest_noise": round(gap / rest.rms, 3) if rest.rms > 0 else None,
+    return {"gap_to_rest_noise": round(gap / rest.rms, 3),
             "excess_rms": float(np.sqrt(max(gap**2 - rest.rms**2, 0.0))), "unit": "m",
             "bands_hz": {"below_excitation": [0.0, edges[0]], "excitation_band": list(edges),
                          "high": [edges[1], 0.5 / rest.dt]},
