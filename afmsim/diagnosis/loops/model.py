@@ -84,6 +84,7 @@ from scipy.signal import cont2discrete, lfilter_zi
 from ..engine import decorrelation_length, noise_floor, sigma_from_second_differences
 from ...hysteresis import play
 from .bouc_wen import bouc_wen_columns, fit_bouc_wen_shape
+from .nnls import nnls_gram
 
 __all__ = ["relay_features", "play_features", "fine_play_features", "drive_polarity", "solve_weights", "untrained_state", "in_trained_states", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
            "creep_gamma_from_bank", "dynamics_filters", "resonance_filter", "resonance_band", "estimate_resonance", "CANDIDATES"]
@@ -886,9 +887,12 @@ class Design:
 def solve_weights(cols_free, cols_pos, target, mask, smooth=None, smoothing: float = SMOOTHING, with_df: bool = False):
     """min ‖[F P]w − x‖² + prior on ``mask`` with w_P ≥ 0; returns (weights_free, weights_pos).
 
-    Columns are scaled to unit RMS, the problem is reduced by a QR factorisation to its
-    (p × p) triangular form via the Cholesky factor of AᵀA (‖A w − x‖² = ‖R w − R⁻ᵀAᵀx‖² + const), and the free weights are split
-    into non-negative ± pairs so that :func:`scipy.optimize.nnls` (Lawson–Hanson) solves it.
+    Columns are scaled to unit RMS and the problem is solved on its Gram matrix ``AᵀA + prior`` by
+    :func:`.nnls.nnls_gram` (a bulk active set whose result is certified optimal); where that does
+    not settle, it is reduced to its (p × p) triangular form via the Cholesky factor of AᵀA
+    (‖A w − x‖² = ‖R w − R⁻ᵀAᵀx‖² + const) and the free weights are split into non-negative ± pairs
+    so that :func:`scipy.optimize.nnls` (Lawson–Hanson) solves it. The minimiser is unique, so both
+    give the same weights (to rounding).
     ``smooth`` (a difference operator D on the first ``smooth.shape[1]`` positive columns, the relay
     density μ): those weights get the smoothness prior ``smoothing``·M·‖D μ‖² (μ in units of
     the mean column scale) and keep the columns that the training part never moves; the other
@@ -918,11 +922,14 @@ def solve_weights(cols_free, cols_pos, target, mask, smooth=None, smoothing: flo
         g[nf:nf + k, nf:nf + k] += smoothing * m * np.mean(scale[nf:nf + k] ** 2) * (ds.T @ ds)
         diag[nf:nf + k] = 1e-9 * m
     g[np.diag_indices_from(g)] += diag + 1e-12 * np.trace(g) / g.shape[0]
-    r = np.linalg.cholesky(g).T  # RᵀR = AᵀA + prior
-    b = solve_triangular(r, ak.T @ target[mask], trans="T")
-    big = np.hstack([r[:, :nf], -r[:, :nf], r[:, nf:]])
-    z, _ = nnls(big, b, maxiter=50 * big.shape[1])
-    wk = np.r_[z[:nf] - z[nf:2 * nf], z[2 * nf:]]
+    h = ak.T @ target[mask]
+    wk = nnls_gram(g, h, nf)  # a certified bulk active set; Lawson–Hanson where it does not settle
+    if wk is None:
+        r = np.linalg.cholesky(g).T  # RᵀR = AᵀA + prior
+        b = solve_triangular(r, h, trans="T")
+        big = np.hstack([r[:, :nf], -r[:, :nf], r[:, nf:]])
+        z, _ = nnls(big, b, maxiter=50 * big.shape[1])
+        wk = np.r_[z[:nf] - z[nf:2 * nf], z[2 * nf:]]
     w = np.zeros(a.shape[1])
     w[keep] = wk
     w /= scale
