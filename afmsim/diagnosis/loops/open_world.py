@@ -132,8 +132,11 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: 39001–39003 first for two relaxation times per decade in the creep bank (042b429; prompted by
 #: 38003/6, measured on spent records of 36001–38003); 40001–40003 first for the dynamics lag in front
 #: of the stack and the drift's parabola continued at its final slope (d8947be; prompted by 39003/15
-#: and the random walks of 36001–39003, measured on spent records of 36001–39003).
-FRESH_SEEDS = (40001, 40002, 40003)
+#: and the random walks of 36001–39003, measured on spent records of 36001–39003); 41001–41003 again
+#: for d8947be's method (more evidence; since 40001–40003's run only reporting was added — the
+#: sensor's noise at rest, the lag-only caveat — and the baseline's least squares moved to a
+#: certified solve of the same minimiser, a3f395f, that reproduced all 102 cases of 40001–40003).
+FRESH_SEEDS = (41001, 41002, 41003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
