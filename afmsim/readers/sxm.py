@@ -97,9 +97,9 @@ def read_sxm(path: Path) -> AfmFile:
         channels.append(Channel(name, direction, quantity_of(name, unit), unit,
                                 (data[:, ::-1] if direction == "backward" else data) * factor, (width, height),
                                 line_time if line_time and line_time > 0 else None))
-    metadata = {key.lower(): " ".join(_value(scan.header, key)) for key in
-                ("NANONIS_VERSION", "REC_DATE", "REC_TIME", "SCAN_PIXELS", "SCAN_RANGE", "SCAN_TIME", "SCAN_DIR")
-                if _value(scan.header, key)}
+    metadata = {key.lower(): text for key in
+                ("NANONIS_VERSION", "REC_DATE", "REC_TIME", "SCAN_PIXELS", "SCAN_RANGE", "SCAN_TIME")
+                if (text := " ".join(_value(scan.header, key)))}
     metadata.update({"slow_scan": " ".join(_value(scan.header, "SCAN_DIR")) or None,
                      "scan_rotation_deg": leading_number(" ".join(_value(scan.header, "SCAN_ANGLE")))})
     return AfmFile(path, "nanonis", tuple(channels), metadata)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import welch
 
-__all__ = ["localise", "hold_mask", "excitation_frequency"]
+__all__ = ["localise", "hold_mask", "excitation_frequency", "excitation_band"]
 
 
 def hold_mask(v, dt, frac=0.02) -> np.ndarray:
@@ -20,6 +20,11 @@ def excitation_frequency(v, dt) -> float:
     f, p = welch(v - v.mean(), fs=1 / dt, nperseg=min(v.size, 4096))
     p[0] = 0
     return float(f[int(np.argmax(p))]) if p.max() > 0 else float(f[1])
+
+
+def excitation_band(f_exc: float) -> tuple[float, float]:
+    """``where.frequency``'s band around the drive's dominant frequency ``f_exc`` (Hz): 0.5–10× it."""
+    return 0.5 * f_exc, 10.0 * f_exc
 
 
 def _shares(r2, groups: dict[str, np.ndarray]) -> dict:
@@ -62,7 +67,7 @@ def localise(t, v, x, resid, mask) -> dict:
     f_exc = excitation_frequency(v, dt)
     f, p = welch(r - r.mean(), fs=1 / dt, nperseg=min(n, 2048))
     ptot = float(p.sum()) or 1.0
-    lo, hi = 0.5 * f_exc, 10 * f_exc
+    lo, hi = excitation_band(f_exc)
     where["frequency"] = {
         "excitation_hz": round(f_exc, 4),
         "below_excitation": round(float(p[f < lo].sum()) / ptot, 4),

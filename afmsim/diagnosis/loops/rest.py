@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import welch
 
-from .localise import excitation_frequency
+from .localise import excitation_band, excitation_frequency
 from .record import LoopRecord
 
 __all__ = ["RestNoise", "rest_noise", "against_rest", "rest_text", "MIN_REST_SAMPLES", "REST_TOLERANCE", "COLOURED_RATIO"]
@@ -83,11 +83,11 @@ def rest_noise(rec: LoopRecord, sigma: float) -> RestNoise | None:
     if n < MIN_REST_SAMPLES:
         return None
     t, x = rec.t[:n] - rec.t[0], rec.x[:n]
-    deviation = x - np.polyval(np.polyfit(t, x, 1), t)
-    rms = float(np.sqrt(np.mean(deviation**2)))
-    if not rms > 1e-6 * float(np.ptp(rec.x)) or not sigma > 0:
+    if not sigma > 0:
         return None
-    return RestNoise(deviation, rec.dt, rms / sigma)
+    deviation = x - np.polyval(np.polyfit(t, x, 1), t)
+    rest = RestNoise(deviation, rec.dt, float(np.sqrt(np.mean(deviation**2))) / sigma)
+    return rest if rest.rms > 1e-6 * float(np.ptp(rec.x)) else None
 
 
 def _band_rms(signal: np.ndarray, dt: float, nperseg: int, edges: tuple[float, float]) -> dict[str, float]:
@@ -104,9 +104,8 @@ def against_rest(rest: RestNoise, v: np.ndarray, residual: np.ndarray) -> dict:
     rest: its RMS in rest-noise units and, band by band (``where.frequency``'s bands around the
     drive ``v``'s dominant frequency), its RMS and the rest's. ``excess`` of a band is the part of
     the remainder's RMS there that the rest's noise does not account for, √(max(r² − n², 0))."""
-    f_exc = excitation_frequency(v, rest.dt)
     nperseg = int(min(rest.deviation.size, residual.size, 2048))
-    edges = (0.5 * f_exc, 10.0 * f_exc)
+    edges = excitation_band(excitation_frequency(v, rest.dt))
     remainder = _band_rms(residual, rest.dt, nperseg, edges)
     noise = _band_rms(rest.deviation, rest.dt, nperseg, edges)
     gap = float(np.sqrt(np.mean(residual**2)))
