@@ -135,8 +135,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: and the random walks of 36001–39003, measured on spent records of 36001–39003); 41001–41003 again
 #: for d8947be's method (more evidence; since 40001–40003's run only reporting was added — the
 #: sensor's noise at rest, the lag-only caveat — and the baseline's least squares moved to a
-#: certified solve of the same minimiser, a3f395f, that reproduced all 102 cases of 40001–40003).
-FRESH_SEEDS = (41001, 41002, 41003)
+#: certified solve of the same minimiser, a3f395f, that reproduced all 102 cases of 40001–40003);
+#: 42001–42003 a third time for it (more evidence; since 41001–41003's run only review mends, no
+#: change to the loop diagnosis).
+FRESH_SEEDS = (42001, 42002, 42003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
