@@ -321,6 +321,10 @@ def diagnose(
     channel: Optional[str] = typer.Option(None, help="Images: controller channel of a run's images.npz/.gwy "
                                                      "(default: none), or the channel of an instrument file "
                                                      "(default: its topography; see 'afmsim inspect')."),
+    reverse_lines: bool = typer.Option(False, "--reverse-lines", help="Images: the file stores its lines "
+                                                                      "last-scanned first although its format does "
+                                                                      "not say so (a .gwy flipped by an import); "
+                                                                      "every channel's rows are reversed first."),
     seed: int = typer.Option(0, min=0, help="Recorded for provenance (the diagnosis is deterministic)."),
 ):
     """Sim-to-real gap diagnosis of measured loops or trace/retrace images: where the baseline misses,
@@ -340,13 +344,15 @@ def diagnose(
     images = reader_for(measured) is not None
     if retrace is not None and not images:
         _fail(f"--retrace goes with an image file, not with {measured.name}")
+    if reverse_lines and not images:
+        _fail(f"--reverse-lines goes with an image file, not with {measured.name}")
     loaded = _load(scenario) if scenario is not None else None
     out = out or default_run_dir("diagnose", measured.stem)
     if out.exists():
         _fail(f"output folder {out} already exists: choose another --out or remove it")
     try:  # image files are read (once) and checked, an instrument file's height pair picked, before anything is written
         record = load_images(measured, channel=channel, line_rate_hz=loaded.scan.line_rate_hz if loaded else None,
-                             retrace=retrace) if images else None
+                             retrace=retrace, reverse_lines=reverse_lines) if images else None
     except ValueError as error:
         _fail(str(error).splitlines()[0])
     picked = record.picked if record is not None else None
@@ -354,7 +360,8 @@ def diagnose(
         typer.echo(picked)
     config = {"measured": str(measured), **({"retrace": str(retrace)} if retrace is not None else {}),
               "scenario": None if scenario is None else str(scenario), "baseline": baseline,
-              "seed": seed, **({"reference": reference, "channel": channel} if images else {}),
+              "seed": seed, **({"reference": reference, "channel": channel, "reverse_lines": reverse_lines}
+                               if images else {}),
               **({"picked": picked} if picked is not None else {})}
     try:
         with run_folder(out, config=config, seed=seed, command="diagnose") as folder:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .channels import AfmFile, Channel, ReaderError, scanned_lines
+from .channels import AfmFile, Channel, ReaderError, reversed_lines, scanned_lines
 from .gwy import read_gwy_file
 from .listing import channel_listing, format_listing
 from .ibw import read_ibw
@@ -32,7 +32,7 @@ from .sxm import read_sxm
 from .pick import pick_error_pair, pick_height_pair
 
 __all__ = ["read_afm_file", "read_afm_files", "pick_height_pair", "pick_error_pair", "AfmFile", "Channel", "ReaderError",
-           "reader_for", "FORMATS", "channel_listing", "format_listing", "scanned_lines"]
+           "reader_for", "FORMATS", "channel_listing", "format_listing", "scanned_lines", "reversed_lines"]
 
 FORMATS = ".nid, .gwy, .ibw, .spm, .000–.999, .sxm, .tiff/.tif (Park), .jpk, .npz"
 _READERS = {".nid": read_nid, ".gwy": read_gwy_file, ".ibw": read_ibw, ".npz": read_npz, ".tiff": read_park,

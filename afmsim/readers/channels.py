@@ -11,12 +11,12 @@ right → left is re-ordered). ``size_m`` is (x = fast axis, y = slow axis) in m
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Channel", "AfmFile", "ReaderError", "quantity_of", "split_direction", "to_si", "leading_number", "scanned_lines",
+__all__ = ["Channel", "AfmFile", "ReaderError", "quantity_of", "split_direction", "to_si", "leading_number", "scanned_lines", "reversed_lines",
            "TRACE_DIRECTIONS", "RETRACE_DIRECTIONS"]
 
 TRACE_DIRECTIONS = ("forward", "trace")
@@ -83,6 +83,18 @@ class AfmFile:
     format: str
     channels: tuple[Channel, ...]
     metadata: dict
+
+
+def reversed_lines(afm: AfmFile) -> AfmFile:
+    """``afm`` with every channel's rows in the opposite order (``metadata["lines_reversed"] = True``).
+
+    For a file whose rows are stored last-scanned first although its reader cannot tell (a ``.gwy``
+    that an import flipped for display: Gwyddion's ``nanonis`` module reverses an upward frame, and
+    a ``.gwy`` keeps no slow-scan direction). Row 0 becomes the first line scanned, as
+    :class:`Channel` promises; the image is mirrored along y (afmsim scans its slow axis upwards).
+    Columns, sizes, line times and offsets are unchanged."""
+    channels = tuple(replace(c, data=np.ascontiguousarray(c.data[::-1])) for c in afm.channels)
+    return replace(afm, channels=channels, metadata={**afm.metadata, "lines_reversed": True})
 
 
 # --- units -----------------------------------------------------------------------------------

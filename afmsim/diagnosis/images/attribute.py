@@ -398,18 +398,20 @@ def plot_image_diagnosis(design: ImageDesign, before: ImageFit, after: ImageFit,
 
 
 def diagnose_images(source, *, scenario=None, reference: str = "auto", baseline: str = "asymmetric",
-                    channel: str | None = None, figure_path=None, rng_seed: int = 0) -> tuple[dict, str]:
+                    channel: str | None = None, figure_path=None, rng_seed: int = 0,
+                    reverse_lines: bool = False) -> tuple[dict, str]:
     """Diagnose a measured trace/retrace pair: a path of any file :func:`afmsim.readers.read_afm_file` reads, a
     dict of arrays, or an :class:`~afmsim.diagnosis.images.record.ImageRecord` already loaded.
 
     ``scenario`` (a :class:`~afmsim.scenario.Scenario` or a YAML path) gives the imaged sample, the
     tip, the Z loop and the effects already modelled; without it the trace is the reference.
     Returns ``(report, summary)``; ``report`` is JSON-serialisable (``diagnosis.json``).
-    ``rng_seed`` is recorded for provenance; the diagnosis is deterministic.
+    ``rng_seed`` is recorded for provenance; the diagnosis is deterministic. ``reverse_lines``: the
+    file stores its lines last-scanned first (:func:`~afmsim.diagnosis.images.record.load_images`).
     """
     scenario = as_scenario(scenario)
     rate = scenario.scan.line_rate_hz if scenario is not None else None
-    record = load_images(source, channel=channel, line_rate_hz=rate)
+    record = load_images(source, channel=channel, line_rate_hz=rate, reverse_lines=reverse_lines)
     report, summary, _ = diagnose_image_record(record, scenario, reference=reference, baseline=baseline,
                                                figure_path=figure_path)
     report["rng_seed"] = int(rng_seed)

@@ -311,7 +311,7 @@ def budget_text(done: dict) -> str:
 
 
 def load_images(source, *, channel: str | None = None, line_rate_hz: float | None = None,
-                retrace=None) -> ImageRecord:
+                retrace=None, reverse_lines: bool = False) -> ImageRecord:
     """Validated :class:`ImageRecord` from a ``.npz``/``.gwy``/instrument-file path (read once, by
     :func:`afmsim.readers.read_afm_file`) or a mapping with the ``.npz`` keys; an
     :class:`ImageRecord` comes back as it is (already read and validated).
@@ -322,14 +322,20 @@ def load_images(source, *, channel: str | None = None, line_rate_hz: float | Non
     instrument file or a plain ``.npz`` records none, and before what a run's ``images.npz``/
     ``images.gwy`` recorded. ``retrace``: a second instrument file holding the other scan direction
     (Park Systems writes one direction per file), read with ``source`` as one file
-    (:func:`afmsim.readers.read_afm_files`).
+    (:func:`afmsim.readers.read_afm_files`). ``reverse_lines``: the file stores its lines
+    last-scanned first although its reader cannot tell (a ``.gwy`` flipped by an import); every
+    channel's rows are reversed before anything else (:func:`afmsim.readers.reversed_lines`), so the
+    first line scanned comes first — read backwards in time, a stage's slow-axis creep and drift
+    fit no model (docs/diagnosis.md, "Line order matters"). A path or a mapping only.
     """
     if retrace is not None and not isinstance(source, (str, Path)):
         raise ValueError("retrace: a second file goes with an image file path only")
     if isinstance(source, ImageRecord):
+        if reverse_lines:
+            raise ValueError("reverse_lines: give the file or the arrays, not a record already read")
         return source
     if isinstance(source, (str, Path)):
-        from afmsim.readers import FORMATS, read_afm_files, reader_for
+        from afmsim.readers import FORMATS, read_afm_files, reader_for, reversed_lines
 
         path = Path(source)
         if not path.is_file():
@@ -338,8 +344,9 @@ def load_images(source, *, channel: str | None = None, line_rate_hz: float | Non
             raise ValueError(f"image file must be .npz or .gwy (images) or an instrument file ({FORMATS}), "
                              f"got {path.name}")
         files = (path,) if retrace is None else (path, Path(retrace))  # an unknown suffix: the reader's one line
-        cols, picked, channel_label = _columns(read_afm_files(*files), channel, line_rate_hz)
-        label = " + ".join([str(path), *(f.name for f in files[1:])])
+        afm = read_afm_files(*files)
+        cols, picked, channel_label = _columns(reversed_lines(afm) if reverse_lines else afm, channel, line_rate_hz)
+        label = " + ".join([str(path), *(f.name for f in files[1:])]) + (" (lines reversed)" if reverse_lines else "")
         return _validate(cols, label + (f" [{channel_label}]" if channel_label else ""), picked)
     if isinstance(source, dict):
         missing = [k for k in REQUIRED if k not in source and not (k == "line_rate_hz" and line_rate_hz)]
@@ -347,5 +354,8 @@ def load_images(source, *, channel: str | None = None, line_rate_hz: float | Non
             raise ValueError(f"images lack key(s) {missing}; need trace, retrace, scan_size_m, line_rate_hz")
         cols = dict(source)
         cols.setdefault("line_rate_hz", line_rate_hz)
-        return _validate(cols, "arrays")
+        if reverse_lines:
+            cols.update({k: np.asarray(cols[k])[::-1] for k in ("trace", "retrace", "error_trace", "error_retrace")
+                         if cols.get(k) is not None})
+        return _validate(cols, "arrays (lines reversed)" if reverse_lines else "arrays")
     raise ValueError("images must be a .npz/.gwy path or a dict with trace, retrace, scan_size_m, line_rate_hz")
