@@ -25,7 +25,22 @@ Outside the open-world suite's draw (:data:`NULL_FAMILIES`), reachable through :
   Control 50 (2005) 631): ``dx = α·|dv|·(f(v) − x) + g(v)·dv`` with a quadratic anhysteretic curve
   f and a linear slope g, so that the law's drive term ``f′ − g`` changes along the voltage
   (a Bouc–Wen law has a constant one). Added as the probe that the baseline's Bouc–Wen family
-  could not fit (development records, seeds ``[91, 0…11]``).
+  could not fit (development records, seeds ``[91, 0…11]``);
+* :func:`dahl` — the Dahl model of the Duhem class (Dahl, AIAA J. 14 (1976) 1675; used for piezo
+  stacks as for friction): ``dF/dv = σ·|1 − s·F/F_c|^α·sign(1 − s·F/F_c)``, s the sign of dv, with
+  α ∈ (0.5, 2) — α = 1 is a Bouc–Wen law with n = 1, any other α is not;
+* :func:`jiles_atherton` — the Jiles–Atherton model (Jiles & Atherton, J. Magn. Magn. Mater. 61
+  (1986) 48; proposed for ferroelectric hysteresis as for magnetic): an anhysteretic Langevin curve
+  with a mean-field feedback, the irreversible part pinned (``dM_irr/dH = (M_an − M_irr)/(k·δ −
+  α·(M_an − M_irr))``, and only where M_an − M_irr has the sign of dH), a reversible share c. Its
+  minor loops do not close (no return-point memory), and its drive term follows the Langevin
+  curve's slope, which no Bouc–Wen law's drive term (linear in the voltage) does;
+* :func:`maxwell_slip` — the Maxwell slip model (Goldfarb & Celanovic, J. Dyn. Syst. Meas.
+  Control 119 (1997) 478, for piezo stacks): 5–15 spring–slider elements of random stiffness and
+  slip limit — a Prandtl–Ishlinskii model with few sharp operators (the paper's SPI class).
+
+The last three were added as a probe of families no one tuned the baseline on (docs/diagnosis.md,
+"Families outside the suite"); their records are development records now.
 
 Every generator maps a 0–10 V drive to about ``travel_m`` of displacement and draws its shape from
 ``rng`` (a seeded :class:`numpy.random.Generator`), so a seed is a different stage.
@@ -36,8 +51,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ...hysteresis import play
+
 __all__ = ["NULL_FAMILIES", "OTHER_FAMILIES", "scattered_preisach", "generalised_pi", "bouc_wen", "coleman_hodgdon",
-           "null_plant"]
+           "dahl", "jiles_atherton", "maxwell_slip", "null_plant"]
 
 V_MAX = 10.0
 #: Largest voltage substep (V) of the Bouc–Wen plant's explicit Euler integration (converged to
@@ -189,9 +206,85 @@ def _bouc_wen_h(v, amp, beta, gamma, n, substeps, max_substep_v):  # pragma: no 
     return h
 
 
+def dahl(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6,
+         max_substep_v: float = MAX_SUBSTEP_V) -> np.ndarray:
+    """Displacement (m) of a Dahl plant: the hysteretic force F of ``dF/dv = σ·|z|^α·sign(z)``,
+    ``z = 1 − sign(dv)·F/F_c``, from F = 0 at the first sample, plus a slightly curved linear
+    part (loop width 10–20 % of the travel, as a piezo stack's); explicit Euler in voltage substeps
+    of at most ``max_substep_v`` (V), at least 8 per sample."""
+    alpha, fc, sigma = rng.uniform(0.5, 2.0), rng.uniform(0.5, 2.0), rng.uniform(1.0, 5.0)
+    force = _dahl(np.asarray(v, dtype=np.float64), sigma, fc, alpha, max_substep_v)
+    return _to_travel(force + rng.uniform(0.8, 2.0) * fc * v * (1.0 + rng.uniform(-0.03, 0.03) * v), travel_m)
+
+
+@njit(cache=True)
+def _dahl(v, sigma, fc, alpha, max_substep_v):  # pragma: no cover - compiled
+    out = np.empty(v.size)
+    force = 0.0
+    out[0] = force
+    for k in range(1, v.size):
+        m = max(8, int(np.ceil(abs(v[k] - v[k - 1]) / max_substep_v)))
+        dv = (v[k] - v[k - 1]) / m
+        s = 1.0 if dv > 0 else -1.0
+        for _ in range(m):
+            z = 1.0 - s * force / fc
+            force += sigma * abs(z) ** alpha * (1.0 if z >= 0 else -1.0) * dv
+        out[k] = force
+    return out
+
+
+def jiles_atherton(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6,
+                   max_substep_v: float = MAX_SUBSTEP_V) -> np.ndarray:
+    """Displacement (m) of a Jiles–Atherton plant: the polarisation M (Langevin anhysteretic curve
+    of shape a, mean field α, pinning k, reversible share c) driven by the field ``H = g·(v − v₀)``,
+    from M = 0, plus a linear part (loop width 5–15 % of the travel); voltage substeps of at most
+    ``max_substep_v`` (V), at least 8 per sample."""
+    a, k, c = rng.uniform(0.8, 2.0), rng.uniform(0.5, 1.5), rng.uniform(0.1, 0.5)
+    mean_field = rng.uniform(0.0, 0.3) * a / 3.0  # below the anhysteretic curve's slope limit 3a
+    centre, gain = rng.uniform(4.0, 6.0), rng.uniform(0.6, 1.0)
+    m = _jiles_atherton(np.asarray(v, dtype=np.float64), centre, gain, a, mean_field, k, c, max_substep_v)
+    return _to_travel(m + rng.uniform(0.1, 0.25) * v, travel_m)
+
+
+@njit(cache=True)
+def _jiles_atherton(v, centre, gain, a, mean_field, k, c, max_substep_v):  # pragma: no cover - compiled
+    out = np.empty(v.size)
+    m_irr = 0.0
+    m = 0.0
+    out[0] = m
+    for i in range(1, v.size):
+        steps = max(8, int(np.ceil(abs(v[i] - v[i - 1]) / max_substep_v)))
+        dh = gain * (v[i] - v[i - 1]) / steps
+        h = gain * (v[i - 1] - centre)
+        delta = 1.0 if dh >= 0 else -1.0
+        for _ in range(steps):
+            h += dh
+            x = (h + mean_field * m) / a
+            m_an = x / 3.0 if abs(x) < 1e-4 else 1.0 / np.tanh(x) - 1.0 / x
+            gap = m_an - m_irr
+            if delta * gap > 0:  # pinning only resists: no irreversible change against the field's motion
+                m_irr += gap / (k * delta - mean_field * gap) * dh
+            m = c * m_an + (1.0 - c) * m_irr
+        out[i] = m
+    return out
+
+
+def maxwell_slip(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6) -> np.ndarray:
+    """Displacement (m) of a Maxwell slip plant: 5–15 elements, each a spring of stiffness k_i
+    (log-normal) on a slider that sticks until the drive is more than its slip limit r_i (uniform
+    0.05–3 V) away, ``Σ k_i·p_i`` with p_i the slider positions (play operators of half-width r_i,
+    from rest at the first sample), plus a linear part."""
+    n = int(rng.integers(5, 16))
+    stiffness = rng.lognormal(0.0, 0.6, n)
+    limit = np.sort(rng.uniform(0.05, 3.0, n))
+    sliders = play(np.asarray(v, dtype=np.float64), limit, h0=float(v[0]))
+    return _to_travel(sliders @ stiffness + rng.uniform(0.5, 2.0) * stiffness.sum() * v, travel_m)
+
+
 NULL_FAMILIES = {"scattered_preisach": scattered_preisach, "generalised_pi": generalised_pi, "bouc_wen": bouc_wen}
 #: Families outside the open-world suite's draw (its case plan and results stay comparable across versions).
-OTHER_FAMILIES = {"coleman_hodgdon": coleman_hodgdon}
+OTHER_FAMILIES = {"coleman_hodgdon": coleman_hodgdon, "dahl": dahl, "jiles_atherton": jiles_atherton,
+                  "maxwell_slip": maxwell_slip}
 
 
 def null_plant(family: str, v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6) -> np.ndarray:

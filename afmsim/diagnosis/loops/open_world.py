@@ -76,7 +76,7 @@ from .null_plants import NULL_FAMILIES, null_plant
 from .record import load_record
 from .validation import EXCITATIONS, excitation, superpose_steps
 
-__all__ = ["validate_open_world", "headline", "proportion_text", "case_plan", "make_case", "run_case", "score_cases", "proportion", "CaseSpec",
+__all__ = ["validate_open_world", "headline", "proportion_text", "case_plan", "make_case", "record_drive", "run_case", "score_cases", "proportion", "CaseSpec",
            "PLANTS", "EFFECT_LEVELS", "DISTRACTOR_LEVELS", "DEVELOPMENT_SEEDS", "FRESH_SEEDS", "TARGETS"]
 
 NM_PER_MIN = 1e-9 / 60.0
@@ -219,7 +219,7 @@ def _repeats_its_range(v: np.ndarray, train_fraction: float = 0.6, tolerance: fl
     return bool(v[k:].min() >= lo - pad and v[k:].max() <= hi + pad)
 
 
-def _drive(timing: str, rng: np.random.Generator, f0: float | None = None) -> tuple[np.ndarray, np.ndarray, str]:
+def record_drive(timing: str, rng: np.random.Generator, f0: float | None = None) -> tuple[np.ndarray, np.ndarray, str]:
     """Time (s), drive voltage (0–10 V) and excitation kind of one record, redrawn (up to 100 times)
     until its held-out part repeats the training part's voltage range."""
     if timing == "fast":
@@ -318,7 +318,7 @@ def make_case(spec: CaseSpec, rng: np.random.Generator) -> dict:
     names = dict(spec.effects)
     f0 = EFFECT_LEVELS["dynamics"][names["dynamics"]].value if "dynamics" in names else None
     timing = _timing(spec, rng)
-    t, v, kind = _drive(timing, rng, f0)
+    t, v, kind = record_drive(timing, rng, f0)
     fs = 1.0 / float(t[1] - t[0])
     plant_seed = int(rng.integers(2**63))
     h_ref = plant_displacement(plant, v, plant_seed)
