@@ -125,6 +125,32 @@ def test_the_remainder_is_read_from_the_training_fit():
     assert "reading" not in out["unexplained"] and "Reading" not in text
 
 
+def test_with_training_fit_nothing_is_missing_only_where_the_training_part_fits_too():
+    # a ringing burst inside the training part only: the held-out part fits within 2x, the training part does not
+    x = _record()
+    x[(T > 10.0) & (T < 20.0)] += 10e-9 * np.sin(2 * np.pi * 7.0 * T[(T > 10.0) & (T < 20.0)])
+    front = ToyFront(x)
+    att = attribute(front, ["drift"], SIGMA)
+    held_only = conclude(front, att, SIGMA, ["drift"])
+    assert held_only["status"] == "nothing_missing" and held_only["baseline_gap"]["gap_to_noise"] <= 2.0
+    assert held_only["unexplained"]["train_gap_to_noise"] > 2.0 and "reading" not in held_only["unexplained"]
+    out = conclude(front, att, SIGMA, ["drift"], rules=Rules(training_fit=True))
+    assert out["status"] == "unexplained" and out["verdict"] == [] and out["unexplained"]["reading"] == "training_only"
+    text = verdict_text({**out, "baseline": {"gap_to_noise": out["baseline_gap"]["gap_to_noise"]}}, lambda w: "")
+    assert "nothing significant" not in text and "misses its own training part" in text
+    # a record that fits its training part keeps nothing_missing under the rule
+    clean = ToyFront(_record())
+    assert conclude(clean, attribute(clean, ["drift"], SIGMA), SIGMA, ["drift"],
+                    rules=Rules(training_fit=True))["status"] == "nothing_missing"
+    # an effect named that closes the held-out gap but not the training part: partly explained
+    x = _record(rate=50e-9 / 60)
+    x[(T > 10.0) & (T < 20.0)] += 10e-9 * np.sin(2 * np.pi * 7.0 * T[(T > 10.0) & (T < 20.0)])
+    front = ToyFront(x)
+    att = attribute(front, ["drift"], SIGMA)
+    assert conclude(front, att, SIGMA, ["drift"])["status"] == "explained"
+    assert conclude(front, att, SIGMA, ["drift"], rules=Rules(training_fit=True))["status"] == "partly_explained"
+
+
 def test_an_implausible_value_is_not_a_finding():
     out, text = _diagnose(_record(rate=5e-6 / 60))  # 5 µm/min: fitted well, but no stage drifts so fast
     assert out["verdict"] == ["drift"] and out["findings"] == []

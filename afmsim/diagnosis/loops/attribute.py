@@ -98,7 +98,8 @@ BASELINE_NAMES = {"preisach": "relay Preisach grid (asymmetric)", "bouc_wen": "B
 #: whose effects are 10–100× the datasheet, two flagged-implausible true effects fall behind the rerun's findings);
 #: an effect must pay for its parameters on the training part too (training support: a drift on a null record
 #: shrank the held-out gap 14 % while leaving the training fit as it was)
-RULES = Rules(max_effects=3, gap_weighted_blocks=True, pair_lookahead=True, findings_first=True, training_support=True)
+RULES = Rules(max_effects=3, gap_weighted_blocks=True, pair_lookahead=True, findings_first=True, training_support=True,
+              training_fit=True)
 #: Held-out scoring rules of :meth:`.model.Design.scored` that count samples in relay states the
 #: training part does not determine (the fallbacks other than ``"wiped_excursions"``).
 UNTRAINED_SCORING = ("before_excursion", "in_range")
