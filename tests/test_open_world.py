@@ -186,9 +186,9 @@ def test_scores_of_a_hand_made_list():
     assert s["status_counts"]["null"] == {"nothing_missing": 1, "explained": 1, "partly_explained": 0, "unexplained": 1}
     assert s["null_readings"]["afmsim_preisach"]["prior_dependent"] == 1
     assert s["remainder_readings"]["effect"] == {"misfit_throughout": 0, "heldout_only": 0, "prior_dependent": 1,
-                                                  "untrained_states": 0}
+                                                  "training_only": 0, "untrained_states": 0}
     assert s["remainder_readings"]["distractor"] == {"misfit_throughout": 0, "heldout_only": 1, "prior_dependent": 0,
-                                                      "untrained_states": 0}
+                                                      "training_only": 0, "untrained_states": 0}
     table = s["detection_vs_magnitude"]["drift"]
     assert list(table) == ["3 nm/min", "40 nm/min"]  # in the order of the levels; the pair is not a row
     assert (table["3 nm/min"]["detected"]["k"], table["3 nm/min"]["detected"]["n"]) == (1, 2)
