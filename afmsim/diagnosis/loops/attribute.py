@@ -359,10 +359,8 @@ def loop_summary(rep: dict) -> str:
     lines.append(verdict_text(rep, where_text))
     for caveat in rep.get("caveats", []):
         lines.append(f"Caveat: dynamics is named as a lag alone (τ = {caveat['lag_time_constant_s'] * 1e3:.3g} ms, no "
-                     "resonance): to first order "
-                     "a loop whose width grows with the drive rate (rate-dependent hysteresis, not a candidate) "
-                     "offsets a loop the same way, and this record cannot tell the two apart; a drive that rings "
-                     "the stage (a step, a fast reversal) would.")
+                     f"resonance): to first order {caveat['alike']} offsets a loop the same way, and this record "
+                     "cannot tell the two apart; a drive that rings the stage (a step, a fast reversal) would.")
     if "cross_coupling_output" in rep:
         lines.append("Cross-coupling x → y: " + coupling_text(rep["cross_coupling_output"]))
     if "minor_loop_law" in rep:
