@@ -74,17 +74,22 @@ def test_report_structure_and_figure(tmp_path):
 
 @pytest.mark.parametrize("fs, f_amp", [(2000.0, 60.0), (1000.0, 25.0)])
 def test_dynamics_lag_is_the_plants_low_frequency_delay(fs, f_amp):
-    """A sine-driven record through amplifier pole × resonance (bilinear, another code path than the
-    candidate): ``dynamics`` is found and its lag is 1/ω_a + 2ζ/ω_0 within 15 %."""
+    """A sine-driven record through amplifier pole × a well-damped resonance (bilinear, another code
+    path than the candidate): ``dynamics`` passes the test with a lag of 1/ω_a + 2ζ/ω_0 within 15 %
+    and no resonance — a lag alone, which a rate-dependent loop width mimics, so it is reported and
+    not named; kept in the model the other candidates are tried on, it lends none of them its
+    shrink (without that, creep took it at an implausible 0.08–0.19 %/decade)."""
     rng = np.random.default_rng(17)
     t, v = excitation("sines", fs, 10.0, rng)
     axis = _plant()
     b, a, true_lag = _dynamics(fs, f_amp)
     x = lfilter(b, a, axis.static_displacement(axis.drive(t, v))) + 10e-9 * rng.standard_normal(t.size)
-    rep, _ = diagnose_loops({"t_s": t, "v_V": v, "x_m": x})
-    assert rep["verdict"][:1] == ["dynamics"]
-    lag = {e["name"]: e for e in rep["effects"]}["dynamics"]["params"]["lag_time_constant_s"]
-    assert lag == pytest.approx(true_lag, rel=0.15)
+    rep, summary = diagnose_loops({"t_s": t, "v_V": v, "x_m": x})
+    dyn = {e["name"]: e for e in rep["effects"]}["dynamics"]
+    assert dyn["params"]["lag_time_constant_s"] == pytest.approx(true_lag, rel=0.15)
+    assert dyn["alike_outside"] and dyn["heldout_shrink"] > 0.9, summary
+    assert rep["verdict"] == [] and rep["status"] == "unexplained", summary
+    assert rep["unexplained"]["share_left"] == pytest.approx(1.0)
 
 
 def test_symmetric_baseline_offers_asymmetry():

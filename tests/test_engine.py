@@ -329,3 +329,46 @@ def test_flattest_noise_sees_the_instrument_not_the_rough_sample():
     assert 0.7 * sigma < flattest_noise((image,)) < 1.05 * sigma
     assert noise_floor(image.ravel()) > 2 * sigma
     assert np.isnan(flattest_noise((image[:, :20],)))
+
+
+class AlikeFront(ToyFront):
+    """Candidates ``lag`` (a cos(2π·0.5 t) column: the sine's phase) and ``drift`` (t); the front
+    cannot tell ``lag`` from a non-candidate, as the loop front cannot tell a lag alone from a loop
+    width that grows with the drive rate."""
+
+    def _columns(self, effects):
+        cols = [np.sin(2 * np.pi * 0.5 * T), np.ones(N)]
+        cols += [np.cos(2 * np.pi * 0.5 * T)] if "lag" in effects else []
+        cols += [T] if "drift" in effects else []
+        return np.column_stack(cols)
+
+    def effect_params(self, fitted, effect):
+        return {}
+
+    def alike_outside(self, fitted, effect):
+        return "a phase of unknown origin" if effect == "lag" else None
+
+
+def test_a_term_alike_a_non_candidate_is_not_named_but_lends_no_candidate_its_shrink():
+    rng = np.random.default_rng(4)
+    phase = 40e-9 * np.cos(2 * np.pi * 0.5 * T)
+    x = 1e-6 * np.sin(2 * np.pi * 0.5 * T) + phase + SIGMA * rng.standard_normal(N)
+    front = AlikeFront(x)
+    att = attribute(front, ["lag", "drift"], SIGMA)
+    out = conclude(front, att, SIGMA, ["lag", "drift"])
+    lag = att.evaluations["lag"]
+    assert lag["test"]["significant"] and lag["alike_outside"] == "a phase of unknown origin"
+    assert not lag["significant"] and att.withheld == ("lag",) and att.accepted == ()
+    assert out["verdict"] == [] and out["status"] == "unexplained"
+    assert out["unexplained"]["share_left"] == pytest.approx(1.0)  # the remainder is the named effects' alone
+    # with a drift as well, the drift is named, tried on top of the withheld term, and the remainder
+    # left by the drift alone keeps the phase
+    y = x + 50e-9 / 60 * T
+    front = AlikeFront(y)
+    att = attribute(front, ["lag", "drift"], SIGMA)
+    out = conclude(front, att, SIGMA, ["lag", "drift"])
+    assert att.accepted == ("drift",) and att.withheld == ("lag",) and out["verdict"] == ["drift"]
+    assert att.evaluations["drift"]["added_to"] == ["lag"]  # the phase was taken first, and kept
+    assert out["status"] == "partly_explained" and out["unexplained"]["gap_to_noise"] > 10.0
+    assert rms(front.heldout_residual(att.final)) == pytest.approx(
+        rms(front.heldout_residual(front.fit(("drift",)))))

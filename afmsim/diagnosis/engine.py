@@ -11,7 +11,13 @@ candidates and its plots through the small :class:`Front` interface; the engine 
    standard of the status below — a candidate must also shrink it by ``Rules.min_step_near_noise``:
    near the noise the test's relative criterion (15 % of a small excess) is met by terms that
    absorb a sliver of the baseline's own misfit; one that passes the test but not this is reported
-   (``gap_within_noise``) and not named. With ``Rules.pair_lookahead`` (loops), a round where no
+   (``gap_within_noise``) and not named. A significant candidate whose fitted term the front
+   cannot tell from something outside the candidate set (:meth:`Front.alike_outside`; loops: a
+   dynamics lag without a resonance, which a loop width growing with the drive rate mimics) is
+   reported (``alike_outside``) and not named either, alone or as a pair's member; where it is
+   taken (the round's best, or in a pair), it stays in the model the later candidates are tried on
+   (``Attribution.withheld``), so that no candidate is credited with its shrink, and the remainder
+   is that of the named effects alone. With ``Rules.pair_lookahead`` (loops), a round where no
    candidate is significant alone and the gap is above ``HONEST_FACTOR`` × σ tries pairs
    (:func:`_pair_step`): two effects that act together, each needed on top of the other;
 2. the significance test (:func:`significance`);
@@ -241,16 +247,24 @@ class Front:
         """Share of ``effect``'s signature that ``fitted`` cannot produce (1: fully new)."""
         return 1.0
 
+    def alike_outside(self, fitted, effect: str) -> str | None:
+        """What outside the candidate set offsets the data as ``effect`` does in ``fitted``, where the
+        front knows the record cannot tell the two apart (None: the fitted term is the effect's own)."""
+        return None
+
 
 @dataclass
 class Attribution:
-    """Outcome of :func:`attribute`: accepted effects (in order, without the modelled ones), fits, evaluations."""
+    """Outcome of :func:`attribute`: accepted effects (in order, without the modelled ones), fits,
+    evaluations, and the ``withheld`` candidates (:meth:`Front.alike_outside`): fitted in the model
+    the later candidates were tried on, not named, not in ``final`` (the model of the accepted ones)."""
 
     modelled: tuple
     accepted: tuple
     baseline: object
     final: object
     evaluations: dict = field(default_factory=dict)
+    withheld: tuple = ()
 
 
 def _with_training_support(front: Front, test: dict, before, after, k_extra: int, rules: Rules) -> dict:
@@ -276,11 +290,11 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
     r_base = front.heldout_residual(base)
     rms_base = rms(r_base)
     ms_base = float(np.mean(r_base**2))
-    current, cur_fit, cur_r = modelled, base, r_base
+    current, cur_fit, cur_r, withheld = modelled, base, r_base, ()
     evaluations: dict[str, dict] = {}
-    for round_no in range(rules.max_effects):
+    for round_no in range(rules.max_effects + 1):
         remaining = [c for c in candidates if c not in current]
-        if not remaining:
+        if not remaining or len(current) - len(modelled) - len(withheld) >= rules.max_effects:
             break
         if round_no:
             cur_fit = front.refresh(current, cur_fit)
@@ -308,16 +322,19 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
                      "significant": False, "added_to": added_to, "test": _round(test)}
             if round_no == 0:
                 entry["heldout_shrink_alone"] = entry["heldout_shrink"]
-            evaluations[c] = {**evaluations.get(c, {}), **entry}
+            evaluations[c] = {**{k: v for k, v in evaluations.get(c, {}).items() if k != "alike_outside"}, **entry}
         if rms(cur_r) <= HONEST_FACTOR * sigma:
             for c, (_, _, test) in trial.items():
                 if test["significant"] and test["step_shrink"] < rules.min_step_near_noise:
                     test["significant"] = False
                     evaluations[c]["gap_within_noise"] = True
+        for c, (fit, _, test) in trial.items():
+            if test["significant"] and (alike := front.alike_outside(fit, c)) is not None:
+                evaluations[c]["alike_outside"] = alike
         passed = [c for c in trial if trial[c][2]["significant"]]
         if not passed:
             lookahead = rules.pair_lookahead and rms(cur_r) > HONEST_FACTOR * sigma \
-                and len(current) - len(modelled) + 2 <= rules.max_effects
+                and len(current) - len(modelled) - len(withheld) + 2 <= rules.max_effects
             pair = _pair_step(front, current, cur_fit, cur_r, trial, sigma, rules) if lookahead else None
             if pair is None:
                 break
@@ -327,18 +344,25 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
                 evaluations[c].update(significant=True, found_with=[m for m in members if m != c],
                                       heldout_shrink=round(1.0 - rms(cur_r) / rms_base, 4) if rms_base > 0 else 0.0,
                                       pair_test=_round(tests["pair"]), needed_given_other=_round(tests[c]))
+                if (alike := front.alike_outside(cur_fit, c)) is not None:
+                    evaluations[c].update(significant=False, alike_outside=alike)
+                    withheld = withheld + (c,)
             continue
         top = min(trial[c][2]["delta_bic"] for c in passed)
         tied = [c for c in passed if trial[c][2]["delta_bic"] <= top + rules.tie_bic]  # canonical order
         cur_fit, cur_r = trial[tied[0]][0], trial[tied[0]][1]
         current = current + (tied[0],)
+        if "alike_outside" in evaluations[tied[0]]:
+            withheld = withheld + (tied[0],)  # kept in the model, so that no candidate is credited with its shrink
+            continue
         evaluations[tied[0]]["significant"] = True
         if len(tied) > 1:
             evaluations[tied[0]]["ambiguous_with"] = tied[1:]
-    accepted = tuple(c for c in current if c not in modelled)
-    for c in accepted:  # parameters of accepted effects come from the final joint fit
+    accepted = tuple(c for c in current if c not in modelled and c not in withheld)
+    for c in accepted + withheld:  # parameters come from the final joint fit
         evaluations[c]["params"] = front.effect_params(cur_fit, c)
-    return Attribution(modelled, accepted, base, cur_fit, evaluations)
+    final = front.fit(modelled + accepted, base) if withheld else cur_fit
+    return Attribution(modelled, accepted, base, final, evaluations, withheld)
 
 
 def _pair_step(front: Front, current: tuple, cur_fit, cur_r, trial: dict, sigma: float, rules: Rules):
@@ -463,6 +487,8 @@ def effect_lines(effects: list[dict]) -> list[str]:
             notes += "  [IMPLAUSIBLE value]"
         elif e.get("finding") is False:
             notes += "  [not significant without the implausible terms]"
+        if e.get("alike_outside"):
+            notes += f"  [passes the test, but not named: {e['alike_outside']} does the same]"
         if e.get("gap_within_noise"):
             notes += f"  [passes the test, but shrinks a gap already within {HONEST_FACTOR:g}× the noise too little to name]"
         lines.append(f"  {e['name']:<15} shrink {e['heldout_shrink']:+.1%}  ΔBIC {e['test']['delta_bic']:+.1f}  "

@@ -22,7 +22,9 @@ Protocol of :func:`diagnose_loops`:
    second differences of the baseline's training residual where the drive moves least,
    :meth:`~afmsim.diagnosis.loops.model.Design.noise_floor`), that also pays for its parameters on
    the training part (:func:`~afmsim.diagnosis.engine.training_delta_bic` < 0), is added, repeated
-   while one is significant (at most 3 effects). ``heldout_shrink`` of an effect is the shrink of the model it was last tried in
+   while one is significant (at most 3 effects); a dynamics term fitted as a lag alone (no
+   resonance) is not named — a loop width that grows with the drive rate does the same
+   (:meth:`LoopFront.alike_outside`, reported in ``caveats``). ``heldout_shrink`` of an effect is the shrink of the model it was last tried in
    (``added_to`` lists the effects that model already had); ``heldout_shrink_alone`` is baseline +
    that effect only;
 5. status (``nothing_missing``/``explained``/``partly_explained``/``unexplained``), implausible
@@ -52,6 +54,8 @@ from .rest import against_rest, rest_noise, rest_text
 __all__ = ["diagnose_loops", "diagnose_record", "choose_split", "LoopFront"]
 
 TRAIN_FRACTION = 0.6
+#: What a dynamics lag fitted without a resonance is alike (:meth:`LoopFront.alike_outside`).
+RATE_WIDTH_ALIKE = "a loop width that grows with the drive rate (rate-dependent hysteresis, not a candidate)"
 #: Later splits tried in turn (:func:`choose_split`) when the held-out part after the first
 #: :data:`TRAIN_FRACTION` has too few samples in relay states the training part determines. On the
 #: four null records of spent open-world seeds 28001–28003 whose held-out part was scored in
@@ -132,6 +136,16 @@ class LoopFront(Front):
     def localise(self, fitted: FittedModel) -> dict:
         rec = self.rec
         return localise(rec.t, rec.v, rec.x, self.residual(fitted), self.held)
+
+    def alike_outside(self, fitted: FittedModel, effect: str) -> str | None:
+        """:data:`RATE_WIDTH_ALIKE` for a dynamics term fitted as a lag alone (no resonance): it
+        offsets a loop by −τ·ẋ, and a loop width that grows with the drive rate offsets it by a
+        term proportional to the rate that builds up after a reversal as the loop's slope does —
+        one record cannot tell them apart (docs/diagnosis.md, "A lag alone is not named"); a
+        resonance is linear dynamics' own signature."""
+        if effect == "dynamics" and "resonance_hz" not in fitted.params.get("dynamics", {"resonance_hz": None}):
+            return RATE_WIDTH_ALIKE
+        return None
 
 
 def _available(rec: LoopRecord, baseline: str) -> list[str]:
@@ -267,10 +281,7 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
     }
     if rec.y is not None:
         report["cross_coupling_output"] = coupling_output(rec.t, rec.x, rec.y, train)
-    lag = _lag_only(report)
-    report["caveats"] = [] if lag is None else [
-        {"effect": "dynamics", "kind": "lag_only", "lag_time_constant_s": lag,
-         "alike": "a loop width that grows with the drive rate (rate-dependent hysteresis, not a candidate)"}]
+    report["caveats"] = _withheld_lags(report)
     summary = loop_summary(report)
     if figure_path is not None:
         plot_diagnosis(rec, r_base, front.residual(att.final), held, figure_path,
@@ -358,9 +369,10 @@ def loop_summary(rep: dict) -> str:
     lines += effect_lines(rep["effects"])
     lines.append(verdict_text(rep, where_text))
     for caveat in rep.get("caveats", []):
-        lines.append(f"Caveat: dynamics is named as a lag alone (τ = {caveat['lag_time_constant_s'] * 1e3:.3g} ms, no "
-                     f"resonance): to first order {caveat['alike']} offsets a loop the same way, and this record "
-                     "cannot tell the two apart; a drive that rings the stage (a step, a fast reversal) would.")
+        lines.append(f"Not named: dynamics as a lag alone (τ = {caveat['lag_time_constant_s'] * 1e3:.3g} ms, no "
+                     f"resonance) passes the test (held-out shrink {caveat['heldout_shrink']:.0%}), but to first order "
+                     f"{caveat['alike']} offsets a loop the same way, and this record cannot tell the two apart; a "
+                     "drive that rings the stage (a step, a fast reversal) would.")
     if "cross_coupling_output" in rep:
         lines.append("Cross-coupling x → y: " + coupling_text(rep["cross_coupling_output"]))
     if "minor_loop_law" in rep:
@@ -368,21 +380,17 @@ def loop_summary(rep: dict) -> str:
     return "\n".join(lines)
 
 
-def _lag_only(rep: dict) -> float | None:
-    """The lag time constant (s) of a dynamics finding without a resonance, else None.
-
-    A first-order lag offsets a loop by −τ·ẋ; a loop width that grows with the drive rate by a term
-    proportional to the rate as well, building up after a reversal as the loop's slope does. A
-    velocity column fitted in the lag's place fitted true lag-only dynamics records as well as the
-    lag, and the rate-width distractor worse (development seeds 1–6, docs/diagnosis.md, "Probe of
-    2026-12-06"): one record does not tell them apart, so a lag-only finding says so."""
-    if "dynamics" not in rep["findings"]:
-        return None
-    kept = rep["final"].get("findings_only", {}).get("params", {})  # the findings' own fit, where it differs
-    params = kept.get("dynamics") or next((e["params"] for e in rep["effects"] if e["name"] == "dynamics"), {})
-    if "resonance_hz" in params:
-        return None
-    return params.get("lag_time_constant_s")
+def _withheld_lags(rep: dict) -> list[dict]:
+    """A ``caveats`` entry for a dynamics candidate that passed the test as a lag alone and was not
+    named (:meth:`LoopFront.alike_outside`): its time constant, its held-out shrink and what it is
+    alike."""
+    out = []
+    for e in rep["effects"]:
+        if e["name"] == "dynamics" and e.get("alike_outside"):
+            out.append({"effect": "dynamics", "kind": "lag_only", "named": False,
+                        "lag_time_constant_s": e["params"].get("lag_time_constant_s"),
+                        "heldout_shrink": e["heldout_shrink"], "alike": e["alike_outside"]})
+    return out
 
 
 def plot_diagnosis(rec: LoopRecord, r_before, r_after, held, path, *, title="") -> Path:
