@@ -144,8 +144,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: drifts at their labelled size (peak-to-peak excursion = rate × span instead of a least-squares
 #: rate, which let 42003/3's "90 nm/min" walk wander by 31.9 µm; :func:`drift_term`); 44001–44003
 #: first for loop statuses that also need the training part within 2× (d3be6ed, ``Rules.training_fit``;
-#: prompted by spent records of 40001–43003, re-scored on them exactly: no null changed).
-FRESH_SEEDS = (44001, 44002, 44003)
+#: prompted by spent records of 40001–43003, re-scored on them exactly: no null changed); 45001–45003
+#: first for a dynamics lag alone that is not named (``LoopFront.alike_outside``; prompted by the rate
+#: widths of 40001–44003 read as lags, measured on their spent records).
+FRESH_SEEDS = (45001, 45002, 45003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
