@@ -143,9 +143,8 @@ class LoopFront(Front):
         term proportional to the rate that builds up after a reversal as the loop's slope does —
         one record cannot tell them apart (docs/diagnosis.md, "A lag alone is not named"); a
         resonance is linear dynamics' own signature."""
-        if effect == "dynamics" and "resonance_hz" not in fitted.params.get("dynamics", {"resonance_hz": None}):
-            return RATE_WIDTH_ALIKE
-        return None
+        params = fitted.params.get(effect) if effect == "dynamics" else None
+        return RATE_WIDTH_ALIKE if params is not None and "resonance_hz" not in params else None
 
 
 def _available(rec: LoopRecord, baseline: str) -> list[str]:
