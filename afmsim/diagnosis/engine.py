@@ -341,11 +341,12 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
             members, cur_fit, cur_r, tests = pair
             current = current + members
             for c in members:
-                evaluations[c].update(significant=True, found_with=[m for m in members if m != c],
+                alike = front.alike_outside(cur_fit, c)
+                evaluations[c].update(significant=alike is None, found_with=[m for m in members if m != c],
                                       heldout_shrink=round(1.0 - rms(cur_r) / rms_base, 4) if rms_base > 0 else 0.0,
                                       pair_test=_round(tests["pair"]), needed_given_other=_round(tests[c]))
-                if (alike := front.alike_outside(cur_fit, c)) is not None:
-                    evaluations[c].update(significant=False, alike_outside=alike)
+                if alike is not None:
+                    evaluations[c]["alike_outside"] = alike
                     withheld = withheld + (c,)
             continue
         top = min(trial[c][2]["delta_bic"] for c in passed)

@@ -24,9 +24,9 @@ Protocol of :func:`diagnose_loops`:
    the training part (:func:`~afmsim.diagnosis.engine.training_delta_bic` < 0), is added, repeated
    while one is significant (at most 3 effects); a dynamics term fitted as a lag alone (no
    resonance) is not named — a loop width that grows with the drive rate does the same
-   (:meth:`LoopFront.alike_outside`, reported in ``caveats``). ``heldout_shrink`` of an effect is the shrink of the model it was last tried in
-   (``added_to`` lists the effects that model already had); ``heldout_shrink_alone`` is baseline +
-   that effect only;
+   (:meth:`LoopFront.alike_outside`, reported in ``caveats``). ``heldout_shrink`` of an effect is
+   the shrink of the model it was last tried in (``added_to`` lists the effects that model already
+   had); ``heldout_shrink_alone`` is baseline + that effect only;
 5. status (``nothing_missing``/``explained``/``partly_explained``/``unexplained``), implausible
    parameters and the unexplained remainder, as the engine defines them
    (:func:`~afmsim.diagnosis.engine.conclude`);
