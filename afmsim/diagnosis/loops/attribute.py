@@ -23,8 +23,9 @@ Protocol of :func:`diagnose_loops`:
    :meth:`~afmsim.diagnosis.loops.model.Design.noise_floor`), that also pays for its parameters on
    the training part (:func:`~afmsim.diagnosis.engine.training_delta_bic` < 0), is added, repeated
    while one is significant (at most 3 effects); a dynamics term fitted as a lag alone (no
-   resonance) is not named — a loop width that grows with the drive rate does the same
-   (:meth:`LoopFront.alike_outside`, reported in ``caveats``). ``heldout_shrink`` of an effect is
+   resonance) is not named — a loop width that grows with the drive rate does the same — nor is a
+   drift whose change scales with the displacement, as a sensor sensitivity that changes does
+   (:meth:`LoopFront.alike_outside`, :mod:`.alike`; reported in ``caveats``). ``heldout_shrink`` of an effect is
    the shrink of the model it was last tried in (``added_to`` lists the effects that model already
    had); ``heldout_shrink_alone`` is baseline + that effect only;
 5. status (``nothing_missing``/``explained``/``partly_explained``/``unexplained``), implausible
@@ -44,6 +45,7 @@ import numpy as np
 from afmsim.reproducible import single_blas_thread
 
 from ..engine import Front, Rules, attribute, conclude, effect_lines, ratio_text, rms, verdict_text
+from .alike import RATE_WIDTH_ALIKE, SENSITIVITY_ALIKE, lag_alone, scales_with_displacement
 from .localise import localise
 from .coupling import coupling_output, coupling_text
 from .minor_loop import minor_loop_law
@@ -54,8 +56,6 @@ from .rest import against_rest, rest_noise, rest_text
 __all__ = ["diagnose_loops", "diagnose_record", "choose_split", "LoopFront"]
 
 TRAIN_FRACTION = 0.6
-#: What a dynamics lag fitted without a resonance is alike (:meth:`LoopFront.alike_outside`).
-RATE_WIDTH_ALIKE = "a loop width that grows with the drive rate (rate-dependent hysteresis, not a candidate)"
 #: Later splits tried in turn (:func:`choose_split`) when the held-out part after the first
 #: :data:`TRAIN_FRACTION` has too few samples in relay states the training part determines. On the
 #: four null records of spent open-world seeds 28001–28003 whose held-out part was scored in
@@ -138,13 +138,19 @@ class LoopFront(Front):
         return localise(rec.t, rec.v, rec.x, self.residual(fitted), self.held)
 
     def alike_outside(self, fitted: FittedModel, effect: str) -> str | None:
-        """:data:`RATE_WIDTH_ALIKE` for a dynamics term fitted as a lag alone (no resonance): it
-        offsets a loop by −τ·ẋ, and a loop width that grows with the drive rate offsets it by a
-        term proportional to the rate that builds up after a reversal as the loop's slope does —
-        one record cannot tell them apart (docs/diagnosis.md, "A lag alone is not named"); a
-        resonance is linear dynamics' own signature."""
-        params = fitted.params.get(effect) if effect == "dynamics" else None
-        return RATE_WIDTH_ALIKE if params is not None and "resonance_hz" not in params else None
+        """What outside the candidate set this record cannot tell ``effect``'s fitted term from
+        (:mod:`.alike`): :data:`.alike.RATE_WIDTH_ALIKE` for a dynamics term fitted as a lag alone
+        (a resonance is linear dynamics' own signature); :data:`.alike.SENSITIVITY_ALIKE` for a
+        drift whose change scales with the displacement (on the training part and the scored
+        held-out samples)."""
+        params = fitted.params.get(effect)
+        if effect == "dynamics" and lag_alone(params):
+            return RATE_WIDTH_ALIKE
+        if effect == "drift" and params is not None:
+            d = self.design
+            if scales_with_displacement(d.t, self.rec.x, fitted.prediction, d.train, d.train | self.held):
+                return SENSITIVITY_ALIKE
+        return None
 
 
 def _available(rec: LoopRecord, baseline: str) -> list[str]:
@@ -280,7 +286,7 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
     }
     if rec.y is not None:
         report["cross_coupling_output"] = coupling_output(rec.t, rec.x, rec.y, train)
-    report["caveats"] = _withheld_lags(report)
+    report["caveats"] = _withheld(report)
     summary = loop_summary(report)
     if figure_path is not None:
         plot_diagnosis(rec, r_base, front.residual(att.final), held, figure_path,
@@ -367,11 +373,7 @@ def loop_summary(rep: dict) -> str:
                      f"{rep['record']['train_fraction']:.0%} the states of the rest tests the model fairly.")
     lines += effect_lines(rep["effects"])
     lines.append(verdict_text(rep, where_text))
-    for caveat in rep.get("caveats", []):
-        lines.append(f"Not named: dynamics as a lag alone (τ = {caveat['lag_time_constant_s'] * 1e3:.3g} ms, no "
-                     f"resonance) passes the test (held-out shrink {caveat['heldout_shrink']:.0%}), but to first order "
-                     f"{caveat['alike']} offsets a loop the same way, and this record cannot tell the two apart; a "
-                     "drive that rings the stage (a step, a fast reversal) would.")
+    lines += [_caveat_line(caveat) for caveat in rep.get("caveats", [])]
     if "cross_coupling_output" in rep:
         lines.append("Cross-coupling x → y: " + coupling_text(rep["cross_coupling_output"]))
     if "minor_loop_law" in rep:
@@ -379,17 +381,32 @@ def loop_summary(rep: dict) -> str:
     return "\n".join(lines)
 
 
-def _withheld_lags(rep: dict) -> list[dict]:
-    """A ``caveats`` entry for a dynamics candidate that passed the test as a lag alone and was not
-    named (:meth:`LoopFront.alike_outside`): its time constant, its held-out shrink and what it is
-    alike."""
+def _withheld(rep: dict) -> list[dict]:
+    """A ``caveats`` entry for each candidate that passed the test and was not named
+    (:meth:`LoopFront.alike_outside`): a dynamics lag alone (its time constant) or a drift whose
+    change scales with the displacement (its rate), with its held-out shrink and what it is alike."""
     out = []
     for e in rep["effects"]:
-        if e["name"] == "dynamics" and e.get("alike_outside"):
-            out.append({"effect": "dynamics", "kind": "lag_only", "named": False,
-                        "lag_time_constant_s": e["params"].get("lag_time_constant_s"),
-                        "heldout_shrink": e["heldout_shrink"], "alike": e["alike_outside"]})
+        if not e.get("alike_outside"):
+            continue
+        entry = {"effect": e["name"], "named": False, "heldout_shrink": e["heldout_shrink"], "alike": e["alike_outside"]}
+        if e["name"] == "dynamics":
+            entry.update(kind="lag_only", lag_time_constant_s=e["params"].get("lag_time_constant_s"))
+        else:
+            entry.update(kind="scales_with_displacement", rate_m_per_s=e["params"].get("rate_m_per_s"))
+        out.append(entry)
     return out
+
+
+def _caveat_line(caveat: dict) -> str:
+    if caveat["kind"] == "lag_only":
+        return (f"Not named: dynamics as a lag alone (τ = {caveat['lag_time_constant_s'] * 1e3:.3g} ms, no resonance) "
+                f"passes the test (held-out shrink {caveat['heldout_shrink']:.0%}), but to first order {caveat['alike']} "
+                "offsets a loop the same way, and this record cannot tell the two apart; a drive that rings the stage "
+                "(a step, a fast reversal) would.")
+    return (f"Not named: drift ({caveat['rate_m_per_s'] * 6e10:.3g} nm/min) passes the test (held-out shrink "
+            f"{caveat['heldout_shrink']:.0%}), but the record's slow change scales with the displacement, which an "
+            f"additive drift does not: {caveat['alike']}.")
 
 
 def plot_diagnosis(rec: LoopRecord, r_before, r_after, held, path, *, title="") -> Path:
