@@ -146,8 +146,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: first for loop statuses that also need the training part within 2× (d3be6ed, ``Rules.training_fit``;
 #: prompted by spent records of 40001–43003, re-scored on them exactly: no null changed); 45001–45003
 #: first for a dynamics lag alone that is not named (``LoopFront.alike_outside``; prompted by the rate
-#: widths of 40001–44003 read as lags, measured on their spent records).
-FRESH_SEEDS = (45001, 45002, 45003)
+#: widths of 40001–44003 read as lags, measured on their spent records); 46001–46003 first for a
+#: drift whose change scales with the displacement that is not named (:mod:`.alike`; prompted by the
+#: sensitivity ramps of 40001–45003 read as drifts, measured on their spent records).
+FRESH_SEEDS = (46001, 46002, 46003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
