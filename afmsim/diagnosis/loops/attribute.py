@@ -148,7 +148,8 @@ class LoopFront(Front):
             return RATE_WIDTH_ALIKE
         if effect == "drift" and params is not None:
             d = self.design
-            if scales_with_displacement(d.t, self.rec.x, fitted.prediction, d.train, d.train | self.held):
+            displacement = fitted.prediction if fitted.hysteresis is None else fitted.hysteresis
+            if scales_with_displacement(d.t, self.rec.x, fitted.prediction, displacement, d.train, d.train | self.held):
                 return SENSITIVITY_ALIKE
         return None
 
