@@ -3,8 +3,8 @@
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-import afmsim.diagnosis.loops.model as model
 import afmsim.diagnosis.loops.alike as alike
+import afmsim.diagnosis.loops.model as model
 import afmsim.diagnosis.loops.open_world as open_world
 import afmsim.diagnosis.loops.validation as validation
 from afmsim.diagnosis.loops.alike import (SENSITIVITY_ALIKE, SENSITIVITY_DELTA_BIC, scales_with_displacement,

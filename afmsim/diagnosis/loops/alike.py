@@ -24,8 +24,8 @@ from numpy.polynomial import legendre
 from ..engine import training_delta_bic
 from .model import drift_curvature_column
 
-__all__ = ["RATE_WIDTH_ALIKE", "SENSITIVITY_ALIKE", "SENSITIVITY_DELTA_BIC", "SMOOTH_DEGREE", "lag_alone", "scales_with_displacement",
-           "sensitivity_delta_bic"]
+__all__ = ["RATE_WIDTH_ALIKE", "SENSITIVITY_ALIKE", "SENSITIVITY_DELTA_BIC", "SMOOTH_DEGREE", "lag_alone",
+           "scales_with_displacement", "sensitivity_delta_bic"]
 
 RATE_WIDTH_ALIKE = "a loop width that grows with the drive rate (rate-dependent hysteresis, not a candidate)"
 SENSITIVITY_ALIKE = ("a change that scales with the displacement, as a sensor sensitivity that changes during the "
@@ -56,15 +56,15 @@ def lag_alone(params: dict | None) -> bool:
 def sensitivity_delta_bic(t, x, prediction, displacement, train, scored) -> float:
     """ΔBIC of a sensitivity change over the drift it looks like, on the ``scored`` samples.
 
-    The residual ``x − prediction`` (m) of a model with the drift is regressed on a smooth change in
-    time, the drift's time columns (``t`` normalised, its curvature column, :func:`.model.drift_curvature_column`
-    with the training mask ``train``) and the normalised ``displacement`` (the model's hysteresis
-    part, without the drift: a large drift in it would give the scaled columns a cubic in time to fit
-    the drift with), then on those and the displacement times both time columns (2 parameters more).
-    ``scored``: the training part and the scored held-out samples — the test looks for structure in
-    the residual where the record has one, as the held-out significance test does; it fits no model
-    that predicts. Both regressions also hold a smooth additive change in time
-    (:data:`SMOOTH_DEGREE`), so that only what scales with the displacement is credited.
+    The residual ``x − prediction`` (m) of a model with the drift is regressed on a smooth additive
+    change in time (:data:`SMOOTH_DEGREE`, so that only what scales with the displacement is
+    credited), the drift's time columns (``t`` normalised and its curvature column,
+    :func:`.model.drift_curvature_column` with the training mask ``train``) and the normalised
+    ``displacement`` (the model's hysteresis part, without the drift: a large drift in it would give
+    the scaled columns a cubic in time to fit the drift with), then on those and the displacement
+    times both time columns (2 parameters more). ``scored``: the training part and the scored
+    held-out samples — the test looks for structure in the residual where the record has one, as
+    the held-out significance test does; it fits no model that predicts.
     """
     t, x, prediction, displacement = (np.asarray(a, dtype=float) for a in (t, x, prediction, displacement))
     tn = (t - t[0]) / (t[-1] - t[0])

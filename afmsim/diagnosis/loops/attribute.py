@@ -149,7 +149,8 @@ class LoopFront(Front):
         if effect == "drift" and params is not None:
             d = self.design
             displacement = fitted.prediction if fitted.hysteresis is None else fitted.hysteresis
-            if scales_with_displacement(d.t, self.rec.x, fitted.prediction, displacement, d.train, d.train | self.held):
+            scored = d.train | self.held
+            if scales_with_displacement(d.t, self.rec.x, fitted.prediction, displacement, d.train, scored):
                 return SENSITIVITY_ALIKE
         return None
 
@@ -390,7 +391,8 @@ def _withheld(rep: dict) -> list[dict]:
     for e in rep["effects"]:
         if not e.get("alike_outside"):
             continue
-        entry = {"effect": e["name"], "named": False, "heldout_shrink": e["heldout_shrink"], "alike": e["alike_outside"]}
+        entry = {"effect": e["name"], "named": False, "heldout_shrink": e["heldout_shrink"],
+                 "alike": e["alike_outside"]}
         if e["name"] == "dynamics":
             entry.update(kind="lag_only", lag_time_constant_s=e["params"].get("lag_time_constant_s"))
         else:
@@ -400,6 +402,7 @@ def _withheld(rep: dict) -> list[dict]:
 
 
 def _caveat_line(caveat: dict) -> str:
+    """The summary's "Not named" line of a ``caveats`` entry (:func:`_withheld`)."""
     if caveat["kind"] == "lag_only":
         return (f"Not named: dynamics as a lag alone (τ = {caveat['lag_time_constant_s'] * 1e3:.3g} ms, no resonance) "
                 f"passes the test (held-out shrink {caveat['heldout_shrink']:.0%}), but to first order {caveat['alike']} "
