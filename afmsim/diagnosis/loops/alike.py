@@ -34,7 +34,7 @@ SENSITIVITY_ALIKE = ("a change that scales with the displacement, as a sensor se
 #: sensitivity change: "very strong" evidence on Kass & Raftery's scale (J. Am. Stat. Assoc. 90 (1995)
 #: 773), not the engine's −6: the test's first form (no smooth term, the prediction as the
 #: displacement) read a true 90 nm/min drift at −6.6. Measured on the spent open-world records of
-#: 40001–46003 with a drift named (development records): 21 of the 22 true drifts (alone or with a
+#: 40001–45003 with a drift named (development records): 21 of the 22 true drifts (alone or with a
 #: coupling) read −0.8 to +17, one −58 (45001/16, beside a 1 % coupling on a generalised-PI stage:
 #: withheld); the 12 sensitivity ramps (0.5 %, 2 %) −606 to +5.1, ten below −10 (the two above:
 #: ramps the record's scored samples barely see).
