@@ -12,12 +12,13 @@ candidates and its plots through the small :class:`Front` interface; the engine 
    near the noise the test's relative criterion (15 % of a small excess) is met by terms that
    absorb a sliver of the baseline's own misfit; one that passes the test but not this is reported
    (``gap_within_noise``) and not named. A significant candidate whose fitted term the front
-   cannot tell from something outside the candidate set (:meth:`Front.alike_outside`; loops: a
-   dynamics lag without a resonance, which a loop width growing with the drive rate mimics) is
-   reported (``alike_outside``) and not named either, alone or as a pair's member; where it is
-   taken (the round's best, or in a pair), it stays in the model the later candidates are tried on
-   (``Attribution.withheld``), so that no candidate is credited with its shrink, and the remainder
-   is that of the named effects alone. With ``Rules.pair_lookahead`` (loops), a round where no
+   cannot tell from something outside the candidate set (:meth:`Front.alike_outside`; loops,
+   :mod:`.loops.alike`: a dynamics lag without a resonance, which a loop width growing with the
+   drive rate mimics, and a drift whose change scales with the displacement, as a sensor
+   sensitivity that changes gives) is reported (``alike_outside``) and not named either, alone or
+   as a pair's member; where it is taken (the round's best, or in a pair), it stays in the model the
+   later candidates are tried on (``Attribution.withheld``), so that no candidate is credited with
+   its shrink, and the remainder is that of the named effects alone. With ``Rules.pair_lookahead`` (loops), a round where no
    candidate is significant alone and the gap is above ``HONEST_FACTOR`` × σ tries pairs
    (:func:`_pair_step`): two effects that act together, each needed on top of the other;
 2. the significance test (:func:`significance`);
@@ -292,9 +293,13 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
     ms_base = float(np.mean(r_base**2))
     current, cur_fit, cur_r, withheld = modelled, base, r_base, ()
     evaluations: dict[str, dict] = {}
+
+    def n_named() -> int:  # effects taken so far that count against Rules.max_effects
+        return len(current) - len(modelled) - len(withheld)
+
     for round_no in range(rules.max_effects + 1):
         remaining = [c for c in candidates if c not in current]
-        if not remaining or len(current) - len(modelled) - len(withheld) >= rules.max_effects:
+        if not remaining or n_named() >= rules.max_effects:
             break
         if round_no:
             cur_fit = front.refresh(current, cur_fit)
@@ -334,7 +339,7 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
         passed = [c for c in trial if trial[c][2]["significant"]]
         if not passed:
             lookahead = rules.pair_lookahead and rms(cur_r) > HONEST_FACTOR * sigma \
-                and len(current) - len(modelled) - len(withheld) + 2 <= rules.max_effects
+                and n_named() + 2 <= rules.max_effects
             pair = _pair_step(front, current, cur_fit, cur_r, trial, sigma, rules) if lookahead else None
             if pair is None:
                 break
