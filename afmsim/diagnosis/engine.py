@@ -13,9 +13,9 @@ candidates and its plots through the small :class:`Front` interface; the engine 
    absorb a sliver of the baseline's own misfit; one that passes the test but not this is reported
    (``gap_within_noise``) and not named. A significant candidate whose fitted term the front
    cannot tell from something outside the candidate set (:meth:`Front.alike_outside`; loops,
-   :mod:`.loops.alike`: a dynamics lag without a resonance, which a loop width growing with the
-   drive rate mimics, and a drift whose change scales with the displacement, as a sensor
-   sensitivity that changes gives) is reported (``alike_outside``) and not named either, alone or
+   :mod:`.loops.alike`: a dynamics lag without a resonance or a creep that relaxes within a tenth
+   of a second, which a loop width growing with the drive rate mimics, and a drift or a creep whose
+   change a sensor sensitivity that changes gives as well) is reported (``alike_outside``) and not named either, alone or
    as a pair's member; where it is taken (the round's best, or in a pair), it stays in the model the
    later candidates are tried on (``Attribution.withheld``), so that no candidate is credited with
    its shrink, and the remainder is that of the named effects alone. With ``Rules.pair_lookahead`` (loops), a round where no

@@ -13,7 +13,19 @@ tests; a term that something outside the set can stand in for is reported and no
   :data:`SENSITIVITY_ALIKE`): a sensor whose sensitivity changes by g(t) during the record reads
   ``(1 + g)·x``, a residual ``g(t)·x`` that an additive drift follows only through the mean
   displacement. Where the displacement times the drift's own time columns fits the record's
-  residual decisively better than the drift alone, the drift term stands in for such a change.
+  residual decisively better than the drift alone, the drift term stands in for such a change;
+* a ``creep`` whose relaxation is over before the creep window (:func:`fast_relaxation`,
+  :data:`RATE_WIDTH_ALIKE`): most of the bank's step response is reached within its first
+  ``t1_s`` (0.1 s) and its slope over the window is below the plausible creep of
+  :mod:`afmsim.diagnosis.plausible` — a relaxation that fast offsets a loop as a lag does, and a
+  loop width that grows with the drive rate offsets it the same way; piezo creep is log-time over
+  seconds to minutes;
+* a ``creep`` that a sensitivity change fits as well (:func:`gain_over_creep_delta_bic`,
+  :data:`SENSITIVITY_ALIKE`): the creep bank relaxes the hysteresis part, so unlike a drift it
+  scales with the displacement itself and the drift's test cannot tell it from a gain change;
+  instead the two explanations compete for the residual of the model without the creep — where
+  the displacement times smooth functions of time fits it at least as well as the creep's term
+  does, the record does not show creep.
 """
 
 from __future__ import annotations
@@ -22,10 +34,12 @@ import numpy as np
 from numpy.polynomial import legendre
 
 from ..engine import training_delta_bic
+from ..plausible import PLAUSIBLE
 from .model import drift_curvature_column
 
-__all__ = ["RATE_WIDTH_ALIKE", "SENSITIVITY_ALIKE", "SENSITIVITY_DELTA_BIC", "SMOOTH_DEGREE", "lag_alone",
-           "scales_with_displacement", "sensitivity_delta_bic"]
+__all__ = ["RATE_WIDTH_ALIKE", "SENSITIVITY_ALIKE", "SENSITIVITY_DELTA_BIC", "SMOOTH_DEGREE", "FAST_SHARE",
+           "GAIN_DEGREE", "lag_alone", "scales_with_displacement", "sensitivity_delta_bic", "fast_share",
+           "fast_relaxation", "gain_over_creep_delta_bic", "gain_fits_as_well"]
 
 RATE_WIDTH_ALIKE = "a loop width that grows with the drive rate (rate-dependent hysteresis, not a candidate)"
 SENSITIVITY_ALIKE = ("a change that scales with the displacement, as a sensor sensitivity that changes during the "
@@ -46,6 +60,16 @@ SENSITIVITY_DELTA_BIC = -10.0
 #: exponential drift (development seed 0) read −243 and was withheld; with a cubic +10. Measured on
 #: the same records as :data:`SENSITIVITY_DELTA_BIC` (degrees 0, 3, 5, 8).
 SMOOTH_DEGREE = 3
+#: Share of the creep bank's step response (up to ``t2_s``) reached by ``t1_s`` above which a creep
+#: whose slope is below the plausible range reads as a fast relaxation (:func:`fast_relaxation`):
+#: "most of it". Measured on spent open-world records (development, seeds 40001–48003): 39 rate
+#: widths that passed the creep test reached 0.85–1.05 of it by 0.1 s (one refit 0.49), with slopes
+#: 0.00–0.49 %/decade; 69 true creeps (1–2.8 %/decade, alone or beside a stage mode) 0.16–0.79,
+#: with slopes 0.63–2.8 %/decade.
+FAST_SHARE = 0.5
+#: Degree in time (Legendre, over the scored span) of the sensitivity change that competes with a
+#: creep (:func:`gain_over_creep_delta_bic`): a smooth change, as the drift's test allows.
+GAIN_DEGREE = 3
 
 
 def lag_alone(params: dict | None) -> bool:
@@ -87,3 +111,54 @@ def scales_with_displacement(t, x, prediction, displacement, train, scored) -> b
     """True where a fitted drift's change scales with the displacement (:func:`sensitivity_delta_bic`
     below :data:`SENSITIVITY_DELTA_BIC`): :data:`SENSITIVITY_ALIKE`."""
     return sensitivity_delta_bic(t, x, prediction, displacement, train, scored) < SENSITIVITY_DELTA_BIC
+
+
+def fast_share(params: dict) -> float:
+    """Share of the creep bank's step response up to ``t2_s`` that is reached by ``t1_s``
+    (:func:`.model.creep_gamma_from_bank`'s times): ``Σc_k(1 − e^{−t1/τ_k}) / Σc_k(1 − e^{−t2/τ_k})``
+    of the fitted ``weights`` and ``taus_s`` (1.0 for an empty bank)."""
+    c, taus = np.asarray(params["weights"], dtype=float), np.asarray(params["taus_s"], dtype=float)
+    late = float(np.sum(c * -np.expm1(-params["t2_s"] / taus)))
+    return float(np.sum(c * -np.expm1(-params["t1_s"] / taus)) / late) if late > 0 else 1.0
+
+
+def fast_relaxation(params: dict | None) -> bool:
+    """True for a fitted ``creep`` whose slope over its window is below the plausible creep and
+    whose step response is mostly (:data:`FAST_SHARE`) reached before the window starts
+    (:data:`RATE_WIDTH_ALIKE`)."""
+    if params is None:
+        return False
+    low = PLAUSIBLE[("creep", "gamma_per_decade")].low
+    return params["gamma_per_decade"] < low and fast_share(params) >= FAST_SHARE
+
+
+def gain_over_creep_delta_bic(t, x, with_creep, without_creep, displacement, scored) -> float:
+    """ΔBIC of a sensitivity change over the creep it competes with, on the ``scored`` samples.
+
+    The residual ``x − without_creep`` (m) of the model without the creep is regressed on a smooth
+    additive change in time (:data:`SMOOTH_DEGREE`) and the normalised ``displacement`` (the
+    hysteresis part), plus either the creep's term ``with_creep − without_creep`` (what adding the
+    creep changed, fitted on the training part) or the displacement times Legendre polynomials of
+    degree 1…:data:`GAIN_DEGREE` in time (a sensitivity ``1 + g(t)``; 2 parameters more). Below 0
+    where the sensitivity change fits the residual better than the creep does after paying for them."""
+    t, x, with_creep, without_creep, displacement = (np.asarray(a, dtype=float) for a in
+                                                     (t, x, with_creep, without_creep, displacement))
+    tn = 2.0 * (t[scored] - t[0]) / (t[-1] - t[0]) - 1.0
+    h = displacement[scored]
+    xs = (h - h.mean()) / (np.ptp(h) or 1.0)
+    r = (x - without_creep)[scored]
+    plain = np.column_stack([legendre.legvander(tn, SMOOTH_DEGREE), xs])
+    creep = np.column_stack([plain, (with_creep - without_creep)[scored]])
+    gain = np.hstack([plain, xs[:, None] * legendre.legvander(tn, GAIN_DEGREE)[:, 1:]])
+
+    def remainder(columns):
+        coef, *_ = np.linalg.lstsq(columns, r, rcond=None)
+        return r - columns @ coef
+
+    return training_delta_bic(remainder(creep), remainder(gain), GAIN_DEGREE - 1)
+
+
+def gain_fits_as_well(t, x, with_creep, without_creep, displacement, scored) -> bool:
+    """True where a sensitivity change fits the record at least as well as the creep does
+    (:func:`gain_over_creep_delta_bic` below 0): :data:`SENSITIVITY_ALIKE`."""
+    return gain_over_creep_delta_bic(t, x, with_creep, without_creep, displacement, scored) < 0.0

@@ -45,7 +45,8 @@ import numpy as np
 from afmsim.reproducible import single_blas_thread
 
 from ..engine import Front, Rules, attribute, conclude, effect_lines, ratio_text, rms, verdict_text
-from .alike import RATE_WIDTH_ALIKE, SENSITIVITY_ALIKE, lag_alone, scales_with_displacement
+from .alike import (RATE_WIDTH_ALIKE, SENSITIVITY_ALIKE, fast_relaxation, fast_share, gain_fits_as_well, lag_alone,
+                    scales_with_displacement)
 from .localise import localise
 from .coupling import coupling_output, coupling_text
 from .minor_loop import minor_loop_law
@@ -140,19 +141,26 @@ class LoopFront(Front):
     def alike_outside(self, fitted: FittedModel, effect: str) -> str | None:
         """What outside the candidate set this record cannot tell ``effect``'s fitted term from
         (:mod:`.alike`): :data:`.alike.RATE_WIDTH_ALIKE` for a dynamics term fitted as a lag alone
-        (a resonance is linear dynamics' own signature); :data:`.alike.SENSITIVITY_ALIKE` for a
-        drift whose change scales with the displacement (on the training part and the scored
-        held-out samples)."""
+        (a resonance is linear dynamics' own signature) and for a creep that relaxes before its
+        window; :data:`.alike.SENSITIVITY_ALIKE` for a drift whose change scales with the
+        displacement and for a creep that a sensitivity change fits as well (both on the training
+        part and the scored held-out samples)."""
         params = fitted.params.get(effect)
         if effect == "dynamics" and lag_alone(params):
             return RATE_WIDTH_ALIKE
-        if effect == "drift" and params is not None:
-            d = self.design
-            displacement = fitted.prediction if fitted.hysteresis is None else fitted.hysteresis
-            scored = d.train | self.held
-            if scales_with_displacement(d.t, self.rec.x, fitted.prediction, displacement, d.train, scored):
-                return SENSITIVITY_ALIKE
-        return None
+        if effect == "creep" and fast_relaxation(params):
+            return RATE_WIDTH_ALIKE
+        if effect not in ("drift", "creep") or params is None:
+            return None
+        d = self.design
+        displacement = fitted.prediction if fitted.hysteresis is None else fitted.hysteresis
+        scored = d.train | self.held
+        if effect == "drift":
+            alike = scales_with_displacement(d.t, self.rec.x, fitted.prediction, displacement, d.train, scored)
+        else:
+            without = self.fit(tuple(e for e in fitted.spec.effects if e != "creep"))
+            alike = gain_fits_as_well(d.t, self.rec.x, fitted.prediction, without.prediction, displacement, scored)
+        return SENSITIVITY_ALIKE if alike else None
 
 
 def _available(rec: LoopRecord, baseline: str) -> list[str]:
@@ -385,18 +393,26 @@ def loop_summary(rep: dict) -> str:
 
 def _withheld(rep: dict) -> list[dict]:
     """A ``caveats`` entry for each candidate that passed the test and was not named
-    (:meth:`LoopFront.alike_outside`): a dynamics lag alone (its time constant) or a drift whose
-    change scales with the displacement (its rate), with its held-out shrink and what it is alike."""
+    (:meth:`LoopFront.alike_outside`): a dynamics lag alone (its time constant), a creep that
+    relaxes before its window (its slope and the share of its step response reached by ``t1_s``), a
+    drift (its rate) or a creep (its slope) whose change scales with the displacement, with its
+    held-out shrink and what it is alike."""
     out = []
     for e in rep["effects"]:
         if not e.get("alike_outside"):
             continue
         entry = {"effect": e["name"], "named": False, "heldout_shrink": e["heldout_shrink"],
                  "alike": e["alike_outside"]}
+        params = e["params"]
         if e["name"] == "dynamics":
-            entry.update(kind="lag_only", lag_time_constant_s=e["params"].get("lag_time_constant_s"))
+            entry.update(kind="lag_only", lag_time_constant_s=params.get("lag_time_constant_s"))
+        elif e["name"] == "creep" and e["alike_outside"] == RATE_WIDTH_ALIKE:
+            entry.update(kind="fast_relaxation", gamma_per_decade=params["gamma_per_decade"],
+                         fast_share=round(fast_share(params), 3), t1_s=params["t1_s"])
+        elif e["name"] == "creep":
+            entry.update(kind="scales_with_displacement", gamma_per_decade=params["gamma_per_decade"])
         else:
-            entry.update(kind="scales_with_displacement", rate_m_per_s=e["params"].get("rate_m_per_s"))
+            entry.update(kind="scales_with_displacement", rate_m_per_s=params.get("rate_m_per_s"))
         out.append(entry)
     return out
 
@@ -408,9 +424,17 @@ def _caveat_line(caveat: dict) -> str:
                 f"passes the test (held-out shrink {caveat['heldout_shrink']:.0%}), but to first order {caveat['alike']} "
                 "offsets a loop the same way, and this record cannot tell the two apart; a drive that rings the stage "
                 "(a step, a fast reversal) would.")
-    return (f"Not named: drift ({caveat['rate_m_per_s'] * 6e10:.3g} nm/min) passes the test (held-out shrink "
-            f"{caveat['heldout_shrink']:.0%}), but the record's slow change scales with the displacement, which an "
-            f"additive drift does not: {caveat['alike']}.")
+    shrink = f"passes the test (held-out shrink {caveat['heldout_shrink']:.0%})"
+    if caveat["kind"] == "fast_relaxation":
+        return (f"Not named: creep ({caveat['gamma_per_decade'] * 100:.2g} %/decade) {shrink}, but "
+                f"{caveat['fast_share']:.0%} of its relaxation is over within {caveat['t1_s']:.2g} s — piezo creep is "
+                f"log-time over seconds to minutes, and a relaxation that fast offsets a loop as {caveat['alike']} "
+                "does.")
+    if caveat["effect"] == "creep":
+        return (f"Not named: creep ({caveat['gamma_per_decade'] * 100:.2g} %/decade) {shrink}, but a change in "
+                f"time that scales with the displacement fits the record at least as well: {caveat['alike']}.")
+    return (f"Not named: drift ({caveat['rate_m_per_s'] * 6e10:.3g} nm/min) {shrink}, but the record's slow change "
+            f"scales with the displacement, which an additive drift does not: {caveat['alike']}.")
 
 
 def plot_diagnosis(rec: LoopRecord, r_before, r_after, held, path, *, title="") -> Path:
