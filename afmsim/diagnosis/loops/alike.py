@@ -62,10 +62,10 @@ SENSITIVITY_DELTA_BIC = -10.0
 SMOOTH_DEGREE = 3
 #: Share of the creep bank's step response (up to ``t2_s``) reached by ``t1_s`` above which a creep
 #: whose slope is below the plausible range reads as a fast relaxation (:func:`fast_relaxation`):
-#: "most of it". Measured on spent open-world records (development, seeds 40001–48003): 39 rate
-#: widths that passed the creep test reached 0.85–1.05 of it by 0.1 s (one refit 0.49), with slopes
-#: 0.00–0.49 %/decade; 69 true creeps (1–2.8 %/decade, alone or beside a stage mode) 0.16–0.79,
-#: with slopes 0.63–2.8 %/decade.
+#: "most of it". Measured on spent open-world records (development): 39 creep fits on the 34
+#: rate-width records of 40001–48003 that passed the creep test reached 0.85–1.05 of it by 0.1 s
+#: (one refit 0.49), with slopes 0.00–0.49 %/decade; the 67 true creeps of 40001–44003 that passed
+#: (1–2.8 %/decade, alone or beside a stage mode) 0.16–0.79, with slopes 0.63–2.8 %/decade.
 FAST_SHARE = 0.5
 #: Degree in time (Legendre, over the scored span) of the sensitivity change that competes with a
 #: creep (:func:`gain_over_creep_delta_bic`): a smooth change, as the drift's test allows.
