@@ -154,8 +154,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: of 40001–46003); 48001–48003 again for it (more evidence; since 47001–47003's run only review
 #: mends, no change to the loop diagnosis); 49001–49003 first for a creep that relaxes within a
 #: tenth of a second or that a sensitivity change fits as well, not named (:mod:`.alike`; prompted
-#: by the rate widths and ramps of 40001–48003 read as creep, measured on their spent records).
-FRESH_SEEDS = (49001, 49002, 49003)
+#: by the rate widths and ramps of 40001–48003 read as creep, measured on their spent records);
+#: 50001–50003 again for them (more evidence; since 49001–49003's run only review mends, no change
+#: to the loop diagnosis).
+FRESH_SEEDS = (50001, 50002, 50003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
