@@ -98,3 +98,22 @@ def test_a_true_creep_is_still_named(seed, index):
     assert "creep" in [e["effect"] for e in case["injected"]]
     assert "creep" in rep["verdict"]
     assert not any(c["effect"] == "creep" for c in rep["caveats"])
+
+
+def test_the_loop_front_fits_each_set_of_effects_once():
+    """The creep's sensitivity test asks for the model without the creep, which the engine fitted
+    already: the front hands back that fit, and it is the one a fresh fit gives."""
+    from afmsim.diagnosis.loops.attribute import LoopFront, choose_split
+    from afmsim.diagnosis.loops.model import Design, ModelSpec, fit_model
+
+    case = make_case(case_plan()[5], np.random.default_rng([45001, 5]))
+    rec = load_record(case["columns"])
+    train, _ = choose_split(rec)
+    d = Design(rec.t, rec.v, rec.x, rec.y, train, v_fine=rec.v_fine)
+    held, _ = d.scored()
+    front = LoopFront(rec, d, held, d.family)
+    first = front.fit(("creep",))
+    assert front.fit(["creep"]) is first
+    assert front.fit(()) is not first
+    fresh = fit_model(d, ModelSpec(kind=d.family, effects=("creep",)))
+    np.testing.assert_array_equal(first.prediction, fresh.prediction)

@@ -115,9 +115,15 @@ class LoopFront(Front):
 
     def __init__(self, rec: LoopRecord, design: Design, held: np.ndarray, baseline: str):
         self.rec, self.design, self.held, self.kind = rec, design, held, baseline
+        self._fits: dict[tuple, FittedModel] = {}
 
     def fit(self, effects: tuple, start=None) -> FittedModel:
-        return fit_model(self.design, ModelSpec(kind=self.kind, effects=tuple(effects)))
+        """The model with ``effects``, fitted once per set of effects in this order (the fit is
+        deterministic; the creep's sensitivity test asks again for the model without the creep)."""
+        key = tuple(effects)
+        if key not in self._fits:
+            self._fits[key] = fit_model(self.design, ModelSpec(kind=self.kind, effects=key))
+        return self._fits[key]
 
     def residual(self, fitted: FittedModel) -> np.ndarray:
         return self.rec.x - fitted.prediction
