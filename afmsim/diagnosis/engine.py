@@ -15,12 +15,13 @@ candidates and its plots through the small :class:`Front` interface; the engine 
    cannot tell from something outside the candidate set (:meth:`Front.alike_outside`; loops,
    :mod:`.loops.alike`: a dynamics lag without a resonance or a creep that relaxes within a tenth
    of a second, which a loop width growing with the drive rate mimics, and a drift or a creep whose
-   change a sensor sensitivity that changes gives as well) is reported (``alike_outside``) and not named either, alone or
-   as a pair's member; where it is taken (the round's best, or in a pair), it stays in the model the
-   later candidates are tried on (``Attribution.withheld``), so that no candidate is credited with
-   its shrink, and the remainder is that of the named effects alone. With ``Rules.pair_lookahead`` (loops), a round where no
-   candidate is significant alone and the gap is above ``HONEST_FACTOR`` × σ tries pairs
-   (:func:`_pair_step`): two effects that act together, each needed on top of the other;
+   change a sensor sensitivity that changes gives as well) is reported (``alike_outside``) and not
+   named either, alone or as a pair's member; where it is taken (the round's best, or in a pair),
+   it stays in the model the later candidates are tried on (``Attribution.withheld``), so that no
+   candidate is credited with its shrink, and the remainder is that of the named effects alone.
+   With ``Rules.pair_lookahead`` (loops), a round where no candidate is significant alone and the
+   gap is above ``HONEST_FACTOR`` × σ tries pairs (:func:`_pair_step`): two effects that act
+   together, each needed on top of the other;
 2. the significance test (:func:`significance`);
 3. plausibility: an accepted effect whose fitted parameter lies outside its physical range
    (:mod:`.plausible`) is *implausible* — it absorbs another mismatch and is not a finding; the

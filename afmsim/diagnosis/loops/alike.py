@@ -72,6 +72,17 @@ FAST_SHARE = 0.5
 GAIN_DEGREE = 3
 
 
+def _normalised(h: np.ndarray) -> np.ndarray:
+    """``h`` centred and scaled by its range (the displacement column of the regressions below)."""
+    return (h - h.mean()) / (np.ptp(h) or 1.0)
+
+
+def _remainder(columns: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """What of ``r`` a least-squares fit on ``columns`` leaves."""
+    coef, *_ = np.linalg.lstsq(columns, r, rcond=None)
+    return r - columns @ coef
+
+
 def lag_alone(params: dict | None) -> bool:
     """True for a fitted ``dynamics`` term without a resonance (:data:`RATE_WIDTH_ALIKE`)."""
     return params is not None and "resonance_hz" not in params
@@ -93,18 +104,12 @@ def sensitivity_delta_bic(t, x, prediction, displacement, train, scored) -> floa
     t, x, prediction, displacement = (np.asarray(a, dtype=float) for a in (t, x, prediction, displacement))
     tn = (t - t[0]) / (t[-1] - t[0])
     time_cols = np.column_stack([tn, drift_curvature_column(tn, train)])[scored]
-    h = displacement[scored]
-    xs = (h - h.mean()) / (np.ptp(h) or 1.0)
+    xs = _normalised(displacement[scored])
     r = (x - prediction)[scored]
     smooth = legendre.legvander(2.0 * tn[scored] - 1.0, SMOOTH_DEGREE)  # its first column is the offset
     plain = np.column_stack([smooth, time_cols, xs])
     scaled = np.hstack([plain, xs[:, None] * time_cols])
-
-    def remainder(columns):
-        coef, *_ = np.linalg.lstsq(columns, r, rcond=None)
-        return r - columns @ coef
-
-    return training_delta_bic(remainder(plain), remainder(scaled), 2)
+    return training_delta_bic(_remainder(plain, r), _remainder(scaled, r), 2)
 
 
 def scales_with_displacement(t, x, prediction, displacement, train, scored) -> bool:
@@ -144,18 +149,12 @@ def gain_over_creep_delta_bic(t, x, with_creep, without_creep, displacement, sco
     t, x, with_creep, without_creep, displacement = (np.asarray(a, dtype=float) for a in
                                                      (t, x, with_creep, without_creep, displacement))
     tn = 2.0 * (t[scored] - t[0]) / (t[-1] - t[0]) - 1.0
-    h = displacement[scored]
-    xs = (h - h.mean()) / (np.ptp(h) or 1.0)
+    xs = _normalised(displacement[scored])
     r = (x - without_creep)[scored]
     plain = np.column_stack([legendre.legvander(tn, SMOOTH_DEGREE), xs])
     creep = np.column_stack([plain, (with_creep - without_creep)[scored]])
     gain = np.hstack([plain, xs[:, None] * legendre.legvander(tn, GAIN_DEGREE)[:, 1:]])
-
-    def remainder(columns):
-        coef, *_ = np.linalg.lstsq(columns, r, rcond=None)
-        return r - columns @ coef
-
-    return training_delta_bic(remainder(creep), remainder(gain), GAIN_DEGREE - 1)
+    return training_delta_bic(_remainder(creep, r), _remainder(gain, r), GAIN_DEGREE - 1)
 
 
 def gain_fits_as_well(t, x, with_creep, without_creep, displacement, scored) -> bool:
