@@ -76,9 +76,10 @@ def test_report_structure_and_figure(tmp_path):
 def test_dynamics_lag_is_the_plants_low_frequency_delay(fs, f_amp):
     """A sine-driven record through amplifier pole × a well-damped resonance (bilinear, another code
     path than the candidate): ``dynamics`` passes the test with a lag of 1/ω_a + 2ζ/ω_0 within 15 %
-    and no resonance — a lag alone, which a rate-dependent loop width mimics, so it is reported and
-    not named; kept in the model the other candidates are tried on, it lends none of them its
-    shrink (without that, creep took it at an implausible 0.08–0.19 %/decade)."""
+    and no resonance — a lag alone, which a rate-dependent loop width mimics to first order; here
+    the width's play columns fit the training part worse than the lag, so the lag is named (the
+    25 Hz pole's 6.4 ms beyond the plausible 5 ms: reported as implausible), and no other candidate
+    takes its shrink (creep took it at an implausible 0.08–0.19 %/decade once)."""
     rng = np.random.default_rng(17)
     t, v = excitation("sines", fs, 10.0, rng)
     axis = _plant()
@@ -87,9 +88,12 @@ def test_dynamics_lag_is_the_plants_low_frequency_delay(fs, f_amp):
     rep, summary = diagnose_loops({"t_s": t, "v_V": v, "x_m": x})
     dyn = {e["name"]: e for e in rep["effects"]}["dynamics"]
     assert dyn["params"]["lag_time_constant_s"] == pytest.approx(true_lag, rel=0.15)
-    assert dyn["alike_outside"] and dyn["heldout_shrink"] > 0.9, summary
-    assert rep["verdict"] == [] and rep["status"] == "unexplained", summary
-    assert rep["unexplained"]["share_left"] == pytest.approx(1.0)
+    assert "alike_outside" not in dyn and dyn["heldout_shrink"] > 0.9, summary
+    assert rep["verdict"] == ["dynamics"] and not rep["caveats"], summary
+    if true_lag <= 5e-3:   # 60 Hz pole: a finding, which takes the gap
+        assert rep["unexplained"]["share_left"] < 0.1 and not rep["implausible"], summary
+    else:                  # 25 Hz pole: beyond the plausible lag (5 ms), reported as such, not a finding
+        assert [f["effect"] for f in rep["implausible"]] == ["dynamics"] and rep["status"] == "unexplained", summary
 
 
 def test_symmetric_baseline_offers_asymmetry():

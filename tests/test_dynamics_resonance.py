@@ -83,22 +83,20 @@ def test_ringing_steps_are_named_dynamics_with_their_resonance(seed, f0):
     assert rep["caveats"] == [] and "Caveat" not in summary  # a resonance is no rate-dependent width
 
 
-def test_a_lag_without_a_mode_gets_no_resonance_and_is_not_named():
+def test_a_lag_without_a_mode_gets_no_resonance_and_is_named_where_a_rate_width_cannot_match_it():
     """A first-order amplifier pole does not ring: the resonance must not pass its BIC gate. A lag
-    alone is, to first order, what a loop width growing with the rate does: it passes the test with
-    the pole's time constant, and is reported, not named — the gap it would take stays unexplained."""
+    alone competes with a loop width that grows with the drive rate (which offsets a loop as a lag
+    does, to first order); a 1 ms pole rounds every reversal over its own time, which the width's
+    play columns cannot, so the lag wins on the training part and is named, with no caveat."""
     rep, summary = diagnose_loops(_record(5, pole_hz=150.0, kind="triangles"))
     dyn = {e["name"]: e for e in rep["effects"]}["dynamics"]
     params = dyn["params"]
     assert "resonance_hz" not in params
     assert params["lag_time_constant_s"] == pytest.approx(1 / (2 * np.pi * 150.0), rel=0.2)
-    assert dyn["test"]["significant"] and dyn["alike_outside"] and not dyn["significant"]
-    assert "dynamics" not in rep["verdict"] and rep["status"] in ("unexplained", "partly_explained"), summary
-    assert rep["unexplained"]["gap_to_noise"] > 2.0
-    (caveat,) = rep["caveats"]
-    assert caveat["kind"] == "lag_only" and not caveat["named"]
-    assert caveat["lag_time_constant_s"] == params["lag_time_constant_s"] and caveat["heldout_shrink"] > 0.3
-    assert "Not named: dynamics as a lag alone" in summary and caveat["alike"] in summary
+    assert dyn["significant"] and "alike_outside" not in dyn
+    assert rep["verdict"][:1] == ["dynamics"], summary
+    assert rep["caveats"] == [] and "Not named" not in summary
+    assert rep["final"]["heldout_shrink"] > 0.5
 
 
 def test_a_lightly_damped_mode_behind_a_pole_beyond_nyquist_is_found_and_takes_most_of_the_gap():
@@ -176,19 +174,19 @@ def _driven_through_pole(seed, pole_hz):
     return {"t_s": t, "v_V": v, "x_m": x + 10e-9 * rng.standard_normal(t.size)}
 
 
-def _withheld_lag(rep: dict, summary: str) -> dict:
+def _named_lag(rep: dict, summary: str) -> dict:
     """The dynamics evaluation of a record whose only missing term is a lag: it passes the test,
-    takes most of the gap, and is not named (a lag alone is what a rate-dependent loop width does)."""
+    takes most of the gap, and is named — a loop width growing with the drive rate, its rival
+    (:func:`afmsim.diagnosis.loops.alike.rate_width_over_lag_delta_bic`), fits the training part worse."""
     dyn = {e["name"]: e for e in rep["effects"]}["dynamics"]
-    assert dyn["test"]["significant"] and dyn["alike_outside"] and "dynamics" not in rep["verdict"], summary
-    assert dyn["heldout_shrink"] > 0.5 and rep["status"] != "explained", summary
-    assert rep["caveats"][0]["lag_time_constant_s"] == dyn["params"]["lag_time_constant_s"]
+    assert dyn["significant"] and "alike_outside" not in dyn and rep["verdict"][:1] == ["dynamics"], summary
+    assert dyn["heldout_shrink"] > 0.5 and not rep["caveats"], summary
     return dyn["params"]
 
 
 def test_an_amplifier_pole_in_front_of_the_stack_is_placed_at_the_drive():
     rep, summary = diagnose_loops(_driven_through_pole(21, 60.0))
-    params = _withheld_lag(rep, summary)
+    params = _named_lag(rep, summary)
     assert params["place"] == "drive"
     assert params["lag_time_constant_s"] == pytest.approx(1 / (2 * np.pi * 60.0), rel=0.2)
 
@@ -202,5 +200,5 @@ def test_a_lag_after_the_stack_stays_at_the_output():
     x = _through([w], [1.0, w], axis.static_displacement(axis.drive(t, v)))
     cols = {"t_s": t, "v_V": v, "x_m": x + 10e-9 * rng.standard_normal(t.size)}
     rep, summary = diagnose_loops(cols)
-    params = _withheld_lag(rep, summary)
+    params = _named_lag(rep, summary)
     assert params["place"] == "output"

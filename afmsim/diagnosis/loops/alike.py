@@ -5,10 +5,15 @@ tests; a term that something outside the set can stand in for is reported and no
 (:func:`afmsim.diagnosis.engine.attribute`; docs/diagnosis.md, "A lag alone is not named" and
 "A drift that scales with the displacement is not named").
 
-* a ``dynamics`` term fitted as a lag alone, no resonance (:func:`lag_alone`,
-  :data:`RATE_WIDTH_ALIKE`): a lag offsets a loop by −τ·ẋ, and a loop width that grows with the
-  drive rate offsets it by a term proportional to the rate that builds up after a reversal as the
-  loop's slope does — one record cannot tell the two apart;
+* a ``dynamics`` term fitted as a lag alone, no resonance (:func:`lag_alone`), that a loop width
+  growing with the drive rate fits as well (:func:`rate_width_over_lag_delta_bic`,
+  :data:`RATE_WIDTH_ALIKE`): a lag offsets a loop by −τ·ẋ, and a rate-dependent width offsets it
+  by a term proportional to the rate that builds up after a reversal as the loop's slope does. The
+  two compete on the training part — the model without the lag plus the lag, or plus the
+  rate-dependent play columns of :meth:`.model.Design.rate_width_columns` (5 parameters, fitted
+  jointly with the hysteresis); where the width does at least as well, the record cannot tell the
+  two apart. A lag that rounds the reversals over its own time (an amplifier pole of milliseconds)
+  or that sits in front of the hysteresis is what a width cannot do;
 * a ``drift`` whose slow change scales with the displacement (:func:`scales_with_displacement`,
   :data:`SENSITIVITY_ALIKE`): a sensor whose sensitivity changes by g(t) during the record reads
   ``(1 + g)·x``, a residual ``g(t)·x`` that an additive drift follows only through the mean
@@ -38,7 +43,7 @@ from ..plausible import PLAUSIBLE
 from .model import drift_curvature_column
 
 __all__ = ["RATE_WIDTH_ALIKE", "SENSITIVITY_ALIKE", "SENSITIVITY_DELTA_BIC", "SMOOTH_DEGREE", "FAST_SHARE",
-           "GAIN_DEGREE", "lag_alone", "scales_with_displacement", "sensitivity_delta_bic", "fast_share",
+           "GAIN_DEGREE", "RATE_WIDTH_COMPETITOR", "lag_alone", "rate_width_over_lag_delta_bic", "rate_width_fits_as_well", "scales_with_displacement", "sensitivity_delta_bic", "fast_share",
            "fast_relaxation", "gain_over_creep_delta_bic", "gain_fits_as_well"]
 
 RATE_WIDTH_ALIKE = "a loop width that grows with the drive rate (rate-dependent hysteresis, not a candidate)"
@@ -67,6 +72,9 @@ SMOOTH_DEGREE = 3
 #: (one refit 0.49), with slopes 0.00–0.49 %/decade; the 67 true creeps of 40001–44003 that passed
 #: (1–2.8 %/decade, alone or beside a stage mode) 0.16–0.79, with slopes 0.63–2.8 %/decade.
 FAST_SHARE = 0.5
+#: The model effect (:func:`.model.fit_model`; not a candidate, never named) that competes with a
+#: lag alone: rate-dependent play widths, :meth:`.model.Design.rate_width_columns`.
+RATE_WIDTH_COMPETITOR = "rate_width"
 #: Degree in time (Legendre, over the scored span) of the sensitivity change that competes with a
 #: creep (:func:`gain_over_creep_delta_bic`): a smooth change, as the drift's test allows.
 GAIN_DEGREE = 3
@@ -84,8 +92,24 @@ def _remainder(columns: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 def lag_alone(params: dict | None) -> bool:
-    """True for a fitted ``dynamics`` term without a resonance (:data:`RATE_WIDTH_ALIKE`)."""
+    """True for a fitted ``dynamics`` term without a resonance (a resonance is linear dynamics' own
+    signature: it rings, which no loop width does)."""
     return params is not None and "resonance_hz" not in params
+
+
+def rate_width_over_lag_delta_bic(r_without, r_lag, r_rate, k_lag: int, k_rate: int) -> float:
+    """Training ΔBIC (decorrelated samples, :func:`.engine.training_delta_bic`) of the
+    rate-dependent width over the lag it competes with: both against the model without the lag,
+    whose training residual is ``r_without``; ``r_lag``/``r_rate`` the training residuals (m) of
+    that model plus the lag (``k_lag`` parameters more) or plus the width's columns (``k_rate``).
+    Below 0 where the width fits the training part better after paying for its parameters."""
+    return training_delta_bic(r_without, r_rate, k_rate) - training_delta_bic(r_without, r_lag, k_lag)
+
+
+def rate_width_fits_as_well(r_without, r_lag, r_rate, k_lag: int, k_rate: int) -> bool:
+    """True where a loop width growing with the drive rate fits the training part at least as well
+    as the lag alone (:func:`rate_width_over_lag_delta_bic` ≤ 0): :data:`RATE_WIDTH_ALIKE`."""
+    return rate_width_over_lag_delta_bic(r_without, r_lag, r_rate, k_lag, k_rate) <= 0.0
 
 
 def sensitivity_delta_bic(t, x, prediction, displacement, train, scored) -> float:

@@ -45,8 +45,8 @@ import numpy as np
 from afmsim.reproducible import single_blas_thread
 
 from ..engine import Front, Rules, attribute, conclude, effect_lines, ratio_text, rms, verdict_text
-from .alike import (RATE_WIDTH_ALIKE, SENSITIVITY_ALIKE, fast_relaxation, fast_share, gain_fits_as_well, lag_alone,
-                    scales_with_displacement)
+from .alike import (RATE_WIDTH_ALIKE, RATE_WIDTH_COMPETITOR, SENSITIVITY_ALIKE, fast_relaxation, fast_share,
+                    gain_fits_as_well, lag_alone, rate_width_fits_as_well, scales_with_displacement)
 from .localise import localise
 from .coupling import coupling_output, coupling_text
 from .minor_loop import minor_loop_law
@@ -147,13 +147,20 @@ class LoopFront(Front):
     def alike_outside(self, fitted: FittedModel, effect: str) -> str | None:
         """What outside the candidate set this record cannot tell ``effect``'s fitted term from
         (:mod:`.alike`): :data:`.alike.RATE_WIDTH_ALIKE` for a dynamics term fitted as a lag alone
-        (a resonance is linear dynamics' own signature) and for a creep that relaxes before its
-        window; :data:`.alike.SENSITIVITY_ALIKE` for a drift whose change scales with the
+        that a rate-dependent loop width fits as well on the training part (a resonance is linear
+        dynamics' own signature) and for a creep that relaxes before its window; :data:`.alike.SENSITIVITY_ALIKE` for a drift whose change scales with the
         displacement and for a creep that a sensitivity change fits as well (both on the training
         part and the scored held-out samples)."""
         params = fitted.params.get(effect)
-        if effect == "dynamics" and lag_alone(params):
-            return RATE_WIDTH_ALIKE
+        if effect == "dynamics":
+            if not lag_alone(params):
+                return None
+            base = tuple(e for e in fitted.spec.effects if e != "dynamics")
+            without, rate = self.fit(base), self.fit(base + (RATE_WIDTH_COMPETITOR,))
+            alike = rate_width_fits_as_well(self.train_residual(without), self.train_residual(fitted),
+                                            self.train_residual(rate), fitted.n_params - without.n_params,
+                                            rate.n_params - without.n_params)
+            return RATE_WIDTH_ALIKE if alike else None
         if effect == "creep" and fast_relaxation(params):
             return RATE_WIDTH_ALIKE
         if effect not in ("drift", "creep") or params is None:
@@ -427,9 +434,9 @@ def _caveat_line(caveat: dict) -> str:
     """The summary's "Not named" line of a ``caveats`` entry (:func:`_withheld`)."""
     if caveat["kind"] == "lag_only":
         return (f"Not named: dynamics as a lag alone (τ = {caveat['lag_time_constant_s'] * 1e3:.3g} ms, no resonance) "
-                f"passes the test (held-out shrink {caveat['heldout_shrink']:.0%}), but to first order {caveat['alike']} "
-                "offsets a loop the same way, and this record cannot tell the two apart; a drive that rings the stage "
-                "(a step, a fast reversal) would.")
+                f"passes the test (held-out shrink {caveat['heldout_shrink']:.0%}), but {caveat['alike']} fits the "
+                "training part at least as well, and this record cannot tell the two apart; a drive that rings the "
+                "stage (a step, a fast reversal) would.")
     shrink = f"passes the test (held-out shrink {caveat['heldout_shrink']:.0%})"
     if caveat["kind"] == "fast_relaxation":
         return (f"Not named: creep ({caveat['gamma_per_decade'] * 100:.2g} %/decade) {shrink}, but "

@@ -66,6 +66,9 @@ jointly with the effect):
   plant's 1/ω_a + 2ζ/ω_0), the discretisation, the lag's ``place`` (``"output"`` or ``"drive"``),
   and ``resonance_hz`` / ``damping_ratio`` when the resonance is kept.
 * ``cross_coupling`` — ``+ c·y_m`` (only with a ``y_m`` column).
+* ``rate_width`` — not a candidate (never offered, never named): a loop width that grows with the
+  drive rate, five free columns of :meth:`Design.rate_width_columns`; the rival a dynamics lag alone
+  must beat on the training part to be named (:mod:`.alike`).
 * ``asymmetry`` — (only for the symmetric baseline) ``+ q2·v² + q3·v³ + Σ e_k·v·P_k(v)``: an even
   mean curve and loop widths that vary along the travel (2 + N_PLAY free terms).
 """
@@ -415,6 +418,32 @@ def _second_order_columns(b, a, x, z0, z1):  # pragma: no cover - compiled
     return out
 
 
+#: Half-widths (fractions of the training voltage range) of the play operators whose rate-dependent
+#: widening competes with a dynamics lag alone (:meth:`Design.rate_width_columns`): log-spaced from a
+#: hundredth of the range (narrower plays slide almost everywhere, as a lag's −τ·ẋ does) to 0.3.
+RATE_WIDTH_RADII = (0.01, 0.0234, 0.0548, 0.128, 0.3)
+
+
+@njit(cache=True)
+def _rate_play_columns(v, rate, radii):  # pragma: no cover - compiled
+    """Per play operator of half-width ``radii[i]`` on ``v``: the drive rate at its last sliding
+    sample, signed against the sliding direction (−rate rising, +rate falling), held while it sticks."""
+    n, m = v.size, radii.size
+    out = np.empty((n, m))
+    w = np.full(m, v[0])
+    last = np.zeros(m)
+    for k in range(n):
+        for i in range(m):
+            if v[k] - radii[i] > w[i]:
+                w[i] = v[k] - radii[i]
+                last[i] = -rate[k]
+            elif v[k] + radii[i] < w[i]:
+                w[i] = v[k] + radii[i]
+                last[i] = rate[k]
+            out[k, i] = last[i]
+    return out
+
+
 def _filt(b, a, cols):
     """Filter columns (axis 0) by a first- or second-order ``b, a``, starting in steady state at the
     first sample; the same numbers as ``scipy.signal.lfilter(b, a, cols, axis=0, zi=...)``.
@@ -708,6 +737,21 @@ class Design:
         relays = self._relays_of(np.clip(lagged[:, 0], self.v_lo, self.v_hi), n_levels)
         vn = (block_means(lagged, self.block)[:, 0] - 0.5 * (self.v_lo + self.v_hi)) / (self.v_hi - self.v_lo)
         return np.hstack([np.column_stack([np.ones_like(vn), vn]), relays])
+
+    def rate_width_columns(self) -> np.ndarray:
+        """Columns of a loop width that grows with the drive rate (the rate-dependent
+        Prandtl–Ishlinskii model of Ang, Khosla & Riviere, IEEE/ASME Trans. Mechatronics 12 (2007)
+        134, to first order in the rate): a play of half-width ``r·(1 + a·|v̇|)`` differs from the
+        rate-independent one by ``−a·r·|v̇|`` on a rising branch, ``+a·r·|v̇|`` on a falling one, at
+        the rate of the moment it last slid — one column per half-width of
+        :data:`RATE_WIDTH_RADII` (normalised voltage, |v̇| in range per second at the full rate),
+        block means as the relays. Not a candidate: what a lag alone competes with
+        (:mod:`.alike`)."""
+        u = self.normalised_voltage()
+        rate = np.abs(np.gradient(u, self.dt / self.block))
+        cols = _rate_play_columns(u, rate, np.asarray(RATE_WIDTH_RADII))
+        cols = block_means(cols, self.block) if self.block > 1 else cols
+        return cols / (np.abs(cols).max(axis=0) + 1e-300)
 
     @cached_property
     def grid_prior_fits(self) -> dict:
@@ -1072,6 +1116,10 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
     if "cross_coupling" in eff and d.y is not None:
         extra.append(d.y)
         names.append("cross_coupling")
+    if "rate_width" in eff:
+        rate_cols = d.rate_width_columns()
+        extra += list(rate_cols.T)
+        names += ["rate_width"] + ["_"] * (rate_cols.shape[1] - 1)
     extra = np.column_stack(extra) if extra else np.empty((d.t.size, 0))
     params: dict = {}
     n_params = hyst_cols.shape[1] + extra.shape[1] + (3 if kind == "bouc_wen" else 0)  # + β, γ, n
