@@ -156,8 +156,11 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: tenth of a second or that a sensitivity change fits as well, not named (:mod:`.alike`; prompted
 #: by the rate widths and ramps of 40001–48003 read as creep, measured on their spent records);
 #: 50001–50003 again for them (more evidence; since 49001–49003's run only review mends, no change
-#: to the loop diagnosis).
-FRESH_SEEDS = (50001, 50002, 50003)
+#: to the loop diagnosis); 51001–51003 first for a dynamics lag alone that competes with a
+#: rate-dependent loop width and is named where it fits the training part better (:mod:`.alike`;
+#: prompted by the stage modes of 49001–50003 that the drive did not ring, measured on the spent
+#: records of 45001–48003).
+FRESH_SEEDS = (51001, 51002, 51003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
