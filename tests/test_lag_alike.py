@@ -45,9 +45,10 @@ def test_a_lag_and_a_rate_width_compete_on_the_training_part():
     r0 = rng.normal(size=4000)
     r_lag, r_good, r_none = 0.7 * r0, 0.6 * r0, r0.copy()
     assert rate_width_over_lag_delta_bic(r0, r_lag, r_good, 2, 5) < 0
-    assert rate_width_fits_as_well(r0, r_lag, r_good, 2, 5)
-    assert not rate_width_fits_as_well(r0, r_lag, r_none, 2, 5)
+    assert rate_width_fits_as_well(rate_width_over_lag_delta_bic(r0, r_lag, r_good, 2, 5))
+    assert not rate_width_fits_as_well(rate_width_over_lag_delta_bic(r0, r_lag, r_none, 2, 5))
     assert rate_width_over_lag_delta_bic(r0, r_lag, r_lag, 2, 5) > 0        # equal fit, more parameters
+    assert not rate_width_fits_as_well(rate_width_over_lag_delta_bic(r0, r_lag, r_lag, 2, 5))
 
 
 def _diagnosed(seed: int, index: int):
@@ -67,7 +68,8 @@ def test_a_lag_standing_in_for_a_rate_width_is_reported_not_named(seed, index):
     assert "dynamics" not in rep["verdict"] and rep["status"] != "explained"
     (caveat,) = [c for c in rep["caveats"] if c["effect"] == "dynamics"]
     assert caveat["kind"] == "lag_only" and not caveat["named"] and caveat["alike"] == RATE_WIDTH_ALIKE
-    assert "Not named: dynamics as a lag alone" in summary
+    assert caveat["rate_width_delta_bic"] < 0          # the width's training ΔBIC beats the lag's
+    assert "Not named: dynamics as a lag alone" in summary and f"ΔBIC {caveat['rate_width_delta_bic']:+.0f}" in summary
 
 
 def test_an_amplifier_pole_is_named_as_a_lag():
@@ -83,3 +85,6 @@ def test_an_amplifier_pole_is_named_as_a_lag():
     assert params["lag_time_constant_s"] == pytest.approx(1 / (2 * np.pi * 60.0), rel=0.1)
     assert not any(c["effect"] == "dynamics" for c in rep["caveats"])
     assert rep["unexplained"]["gap_to_noise"] < 0.2 * rep["baseline"]["gap_to_noise"]
+    dyn = {e["name"]: e for e in rep["effects"]}["dynamics"]
+    assert dyn["rate_width_delta_bic"] > 100           # the lag beats the width by far (+265 when measured)
+    assert "Named: dynamics as a lag alone" in summary

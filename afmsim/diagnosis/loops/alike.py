@@ -43,7 +43,8 @@ from ..plausible import PLAUSIBLE
 from .model import drift_curvature_column
 
 __all__ = ["RATE_WIDTH_ALIKE", "SENSITIVITY_ALIKE", "SENSITIVITY_DELTA_BIC", "SMOOTH_DEGREE", "FAST_SHARE",
-           "GAIN_DEGREE", "RATE_WIDTH_COMPETITOR", "lag_alone", "rate_width_over_lag_delta_bic", "rate_width_fits_as_well", "scales_with_displacement", "sensitivity_delta_bic", "fast_share",
+           "GAIN_DEGREE", "RATE_WIDTH_COMPETITOR", "lag_alone", "rate_width_over_lag_delta_bic",
+           "rate_width_fits_as_well", "scales_with_displacement", "sensitivity_delta_bic", "fast_share",
            "fast_relaxation", "gain_over_creep_delta_bic", "gain_fits_as_well"]
 
 RATE_WIDTH_ALIKE = "a loop width that grows with the drive rate (rate-dependent hysteresis, not a candidate)"
@@ -106,10 +107,10 @@ def rate_width_over_lag_delta_bic(r_without, r_lag, r_rate, k_lag: int, k_rate: 
     return training_delta_bic(r_without, r_rate, k_rate) - training_delta_bic(r_without, r_lag, k_lag)
 
 
-def rate_width_fits_as_well(r_without, r_lag, r_rate, k_lag: int, k_rate: int) -> bool:
+def rate_width_fits_as_well(delta_bic: float) -> bool:
     """True where a loop width growing with the drive rate fits the training part at least as well
-    as the lag alone (:func:`rate_width_over_lag_delta_bic` ≤ 0): :data:`RATE_WIDTH_ALIKE`."""
-    return rate_width_over_lag_delta_bic(r_without, r_lag, r_rate, k_lag, k_rate) <= 0.0
+    as the lag alone (``delta_bic``, :func:`rate_width_over_lag_delta_bic`, ≤ 0): :data:`RATE_WIDTH_ALIKE`."""
+    return delta_bic <= 0.0
 
 
 def sensitivity_delta_bic(t, x, prediction, displacement, train, scored) -> float:

@@ -46,7 +46,8 @@ from afmsim.reproducible import single_blas_thread
 
 from ..engine import Front, Rules, attribute, conclude, effect_lines, ratio_text, rms, verdict_text
 from .alike import (RATE_WIDTH_ALIKE, RATE_WIDTH_COMPETITOR, SENSITIVITY_ALIKE, fast_relaxation, fast_share,
-                    gain_fits_as_well, lag_alone, rate_width_fits_as_well, scales_with_displacement)
+                    gain_fits_as_well, lag_alone, rate_width_fits_as_well, rate_width_over_lag_delta_bic,
+                    scales_with_displacement)
 from .localise import localise
 from .coupling import coupling_output, coupling_text
 from .minor_loop import minor_loop_law
@@ -116,6 +117,9 @@ class LoopFront(Front):
     def __init__(self, rec: LoopRecord, design: Design, held: np.ndarray, baseline: str):
         self.rec, self.design, self.held, self.kind = rec, design, held, baseline
         self._fits: dict[tuple, FittedModel] = {}
+        #: Training ΔBIC of the rate-dependent width over the last dynamics lag alone judged by
+        #: :meth:`alike_outside` (:func:`.alike.rate_width_over_lag_delta_bic`; None before any)
+        self.lag_rival: float | None = None
 
     def fit(self, effects: tuple, start=None) -> FittedModel:
         """The model with ``effects``, fitted once per set of effects in this order (the fit is
@@ -157,10 +161,10 @@ class LoopFront(Front):
                 return None
             base = tuple(e for e in fitted.spec.effects if e != "dynamics")
             without, rate = self.fit(base), self.fit(base + (RATE_WIDTH_COMPETITOR,))
-            alike = rate_width_fits_as_well(self.train_residual(without), self.train_residual(fitted),
-                                            self.train_residual(rate), fitted.n_params - without.n_params,
-                                            rate.n_params - without.n_params)
-            return RATE_WIDTH_ALIKE if alike else None
+            self.lag_rival = rate_width_over_lag_delta_bic(
+                self.train_residual(without), self.train_residual(fitted), self.train_residual(rate),
+                fitted.n_params - without.n_params, rate.n_params - without.n_params)
+            return RATE_WIDTH_ALIKE if rate_width_fits_as_well(self.lag_rival) else None
         if effect == "creep" and fast_relaxation(params):
             return RATE_WIDTH_ALIKE
         if effect not in ("drift", "creep") or params is None:
@@ -277,6 +281,7 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
     _read_prior_dependence(outcome["unexplained"], spread_to_noise, front.kind)
     _read_untrained_split(outcome["unexplained"], split)
     rest = rest_noise(rec, sigma)
+    _note_lag_rival(att.evaluations.get("dynamics"), front.lag_rival)
     report = {
         "record": {"source": rec.source, "samples": n, "sample_interval_s": rec.dt, "decimation": rec.decimation,
                    "duration_s": float(rec.t[-1] - rec.t[0]),
@@ -396,12 +401,32 @@ def loop_summary(rep: dict) -> str:
                      f"{rep['record']['train_fraction']:.0%} the states of the rest tests the model fairly.")
     lines += effect_lines(rep["effects"])
     lines.append(verdict_text(rep, where_text))
+    lines += _lag_named_line(rep)
     lines += [_caveat_line(caveat) for caveat in rep.get("caveats", [])]
     if "cross_coupling_output" in rep:
         lines.append("Cross-coupling x → y: " + coupling_text(rep["cross_coupling_output"]))
     if "minor_loop_law" in rep:
         lines.append("Minor-loop law: " + rep["minor_loop_law"]["note"])
     return "\n".join(lines)
+
+
+def _note_lag_rival(dynamics: dict | None, rival: float | None) -> None:
+    """Give a dynamics lag alone that was named or withheld (:meth:`LoopFront.alike_outside`) the
+    training ΔBIC of the rate-dependent width over it, ``rate_width_delta_bic`` (the last judgement
+    is the deciding one: a withheld or named term is not tried again)."""
+    if dynamics is None or rival is None or not lag_alone(dynamics.get("params")):
+        return
+    if dynamics.get("significant") or dynamics.get("alike_outside"):
+        dynamics["rate_width_delta_bic"] = round(float(rival), 1)
+
+
+def _lag_named_line(rep: dict) -> list[str]:
+    """The summary's line for a lag alone that was named: what it beat."""
+    dyn = next((e for e in rep["effects"] if e["name"] == "dynamics"), None)
+    if dyn is None or not dyn.get("significant") or "rate_width_delta_bic" not in dyn:
+        return []
+    return [f"Named: dynamics as a lag alone (τ = {dyn['params']['lag_time_constant_s'] * 1e3:.3g} ms, no resonance) — "
+            f"{RATE_WIDTH_ALIKE} fits the training part worse (ΔBIC {dyn['rate_width_delta_bic']:+.0f} against the lag)."]
 
 
 def _withheld(rep: dict) -> list[dict]:
@@ -418,7 +443,8 @@ def _withheld(rep: dict) -> list[dict]:
                  "alike": e["alike_outside"]}
         params = e["params"]
         if e["name"] == "dynamics":
-            entry.update(kind="lag_only", lag_time_constant_s=params.get("lag_time_constant_s"))
+            entry.update(kind="lag_only", lag_time_constant_s=params.get("lag_time_constant_s"),
+                         rate_width_delta_bic=e.get("rate_width_delta_bic"))
         elif e["name"] == "creep" and e["alike_outside"] == RATE_WIDTH_ALIKE:
             entry.update(kind="fast_relaxation", gamma_per_decade=params["gamma_per_decade"],
                          fast_share=round(fast_share(params), 3), t1_s=params["t1_s"])
@@ -435,8 +461,8 @@ def _caveat_line(caveat: dict) -> str:
     if caveat["kind"] == "lag_only":
         return (f"Not named: dynamics as a lag alone (τ = {caveat['lag_time_constant_s'] * 1e3:.3g} ms, no resonance) "
                 f"passes the test (held-out shrink {caveat['heldout_shrink']:.0%}), but {caveat['alike']} fits the "
-                "training part at least as well, and this record cannot tell the two apart; a drive that rings the "
-                "stage (a step, a fast reversal) would.")
+                f"training part at least as well (ΔBIC {caveat['rate_width_delta_bic']:+.0f} against the lag), and this "
+                "record cannot tell the two apart; a drive that rings the stage (a step, a fast reversal) would.")
     shrink = f"passes the test (held-out shrink {caveat['heldout_shrink']:.0%})"
     if caveat["kind"] == "fast_relaxation":
         return (f"Not named: creep ({caveat['gamma_per_decade'] * 100:.2g} %/decade) {shrink}, but "
