@@ -152,9 +152,10 @@ class LoopFront(Front):
         """What outside the candidate set this record cannot tell ``effect``'s fitted term from
         (:mod:`.alike`): :data:`.alike.RATE_WIDTH_ALIKE` for a dynamics term fitted as a lag alone
         that a rate-dependent loop width fits as well on the training part (a resonance is linear
-        dynamics' own signature) and for a creep that relaxes before its window; :data:`.alike.SENSITIVITY_ALIKE` for a drift whose change scales with the
-        displacement and for a creep that a sensitivity change fits as well (both on the training
-        part and the scored held-out samples)."""
+        dynamics' own signature) and for a creep that relaxes before its window;
+        :data:`.alike.SENSITIVITY_ALIKE` for a drift whose change scales with the displacement and
+        for a creep that a sensitivity change fits as well (both on the training part and the
+        scored held-out samples)."""
         params = fitted.params.get(effect)
         if effect == "dynamics":
             if not lag_alone(params):
