@@ -40,7 +40,7 @@ from numpy.polynomial import legendre
 
 from ..engine import training_delta_bic
 from ..plausible import PLAUSIBLE
-from .model import drift_curvature_column
+from .model import RATE_WIDTH_COMPETITOR, drift_curvature_column
 
 __all__ = ["RATE_WIDTH_ALIKE", "SENSITIVITY_ALIKE", "SENSITIVITY_DELTA_BIC", "SMOOTH_DEGREE", "FAST_SHARE",
            "GAIN_DEGREE", "RATE_WIDTH_COMPETITOR", "lag_alone", "rate_width_over_lag_delta_bic",
@@ -73,9 +73,6 @@ SMOOTH_DEGREE = 3
 #: (one refit 0.49), with slopes 0.00–0.49 %/decade; the 67 true creeps of 40001–44003 that passed
 #: (1–2.8 %/decade, alone or beside a stage mode) 0.16–0.79, with slopes 0.63–2.8 %/decade.
 FAST_SHARE = 0.5
-#: The model effect (:func:`.model.fit_model`; not a candidate, never named) that competes with a
-#: lag alone: rate-dependent play widths, :meth:`.model.Design.rate_width_columns`.
-RATE_WIDTH_COMPETITOR = "rate_width"
 #: Degree in time (Legendre, over the scored span) of the sensitivity change that competes with a
 #: creep (:func:`gain_over_creep_delta_bic`): a smooth change, as the drift's test allows.
 GAIN_DEGREE = 3

@@ -418,6 +418,9 @@ def _second_order_columns(b, a, x, z0, z1):  # pragma: no cover - compiled
     return out
 
 
+#: The model effect (never a candidate, never named) that competes with a dynamics lag alone
+#: (:mod:`.alike`): rate-dependent play widths, :meth:`Design.rate_width_columns`.
+RATE_WIDTH_COMPETITOR = "rate_width"
 #: Half-widths (fractions of the training voltage range) of the play operators whose rate-dependent
 #: widening competes with a dynamics lag alone (:meth:`Design.rate_width_columns`): log-spaced from a
 #: hundredth of the range (narrower plays slide almost everywhere, as a lag's −τ·ẋ does) to 0.3.
@@ -1116,10 +1119,10 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
     if "cross_coupling" in eff and d.y is not None:
         extra.append(d.y)
         names.append("cross_coupling")
-    if "rate_width" in eff:
+    if RATE_WIDTH_COMPETITOR in eff:
         rate_cols = d.rate_width_columns()
         extra += list(rate_cols.T)
-        names += ["rate_width"] + ["_"] * (rate_cols.shape[1] - 1)
+        names += [RATE_WIDTH_COMPETITOR] + ["_"] * (rate_cols.shape[1] - 1)
     extra = np.column_stack(extra) if extra else np.empty((d.t.size, 0))
     params: dict = {}
     n_params = hyst_cols.shape[1] + extra.shape[1] + (3 if kind == "bouc_wen" else 0)  # + β, γ, n
