@@ -833,7 +833,7 @@ class Design:
         scores = {"preisach": self.grid_prior_fits[self.smoothing][1:]}
         u = self.normalised_voltage()
         shape, _ = fit_bouc_wen_shape(u, self.block, self.free, self.x, self.train, extra=nuisance)
-        cols = np.hstack([free, bouc_wen_columns(u, shape, self.block, self.free)])
+        cols = np.hstack([free, bouc_wen_columns(u, shape, self.block)])
         w, *_ = np.linalg.lstsq(cols[self.train], self.x[self.train], rcond=None)
         scores["bouc_wen"] = (float(np.sum((cols @ w - self.x)[self.train] ** 2)), cols.shape[1] + 4.0)
         play_cols = self.hyst("play")
@@ -922,7 +922,7 @@ class Design:
             elif kind == "bouc_wen":
                 u = self.normalised_voltage()
                 self.bouc_wen_shape, _ = fit_bouc_wen_shape(u, self.block, self.free, self.x, self.train)
-                self._hyst[kind] = bouc_wen_columns(u, self.bouc_wen_shape, self.block, self.free)
+                self._hyst[kind] = bouc_wen_columns(u, self.bouc_wen_shape, self.block)
             elif kind == "play":
                 poly, plays = fine_play_features(self.vc, self.v_lo, self.v_hi, block=self.block)
                 self._hyst[kind] = np.hstack([poly, self.polarity * self.refined_plays(poly, plays)])
@@ -1028,7 +1028,7 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
     u = d.normalised_voltage()
     shape, _ = fit_bouc_wen_shape(u, d.block, d.free, d.x, d.train, transform=transform,
                                   extra=extra, max_evaluations=JOINT_SHAPE_EVALUATIONS)
-    refit, _, _ = _fit_columns(d, spec, bouc_wen_columns(u, shape, d.block, d.free))
+    refit, _, _ = _fit_columns(d, spec, bouc_wen_columns(u, shape, d.block))
     return refit if _train_mse(d, refit) < _train_mse(d, fitted) else fitted
 
 
