@@ -97,7 +97,8 @@ BLOCK_STARTS = (0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.15, 0.65, 0.1
 BLOCK_MARGIN = 0.01
 MIN_BLOCK_SHARE = 0.3
 BASELINE_NAMES = {"preisach": "relay Preisach grid (asymmetric)", "bouc_wen": "Bouc–Wen law (Duhem class)",
-                  "play": "fine play operators + cubic (asymmetric PI)", "symmetric": "play operators (symmetric PI)"}
+                  "play": "fine play operators + cubic (asymmetric PI)", "symmetric": "play operators (symmetric PI)",
+                  "dahl": "Dahl law (Duhem class)"}
 #: effects live at the drive's events (steps, turning points: gap-weighted blocks); creep with a resonance: each alone
 #: can leave the held-out gap no smaller, together they close it (pair lookahead); the verdict leads with the
 #: findings (on 702 open-world records at realistic magnitudes, top-1 457 → 467, no loss; on the closed suite,
@@ -290,7 +291,8 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                    "heldout_from_s": float(rec.t[~train][0]), "heldout_to_s": float(rec.t[~train][-1]),
                    "heldout_scored_fraction": round(float(held.sum() / (~train).sum()), 4), "has_cross_axis": rec.y is not None},
         "status": outcome["status"],
-        "baseline": {"model": BASELINE_NAMES[front.kind], "family": front.kind,
+        "baseline": {"model": BASELINE_NAMES[d.bouc_wen_shape.law if front.kind == "bouc_wen" else front.kind],
+                     "family": front.kind,
                      "rms_gap": rms(r_base[held]), "unit": "m",
                      "gap_to_noise": outcome["baseline_gap"]["gap_to_noise"],
                      "train_rms": rms(r_base[train]), "noise_floor": sigma,
