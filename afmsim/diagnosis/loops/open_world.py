@@ -160,8 +160,11 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: rate-dependent loop width and is named where it fits the training part better (:mod:`.alike`;
 #: prompted by the stage modes of 49001–50003 that the drive did not ring, measured on the spent
 #: records of 45001–48003); 52001–52003 again for it (more evidence; since 51001–51003's run only
-#: its result and docs, no change to the loop diagnosis).
-FRESH_SEEDS = (52001, 52002, 52003)
+#: its result and docs, no change to the loop diagnosis); 53001–53003 first for the Duhem family's
+#: Dahl law and the block-mean backbone of decimated records (:mod:`.bouc_wen`; prompted by Dahl and
+#: Coleman–Hodgdon stages outside the suite, development seeds 901–902 of bench_other_families,
+#: measured on the spent records of 47001–47003).
+FRESH_SEEDS = (53001, 53002, 53003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
