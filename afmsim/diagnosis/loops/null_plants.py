@@ -38,9 +38,13 @@ Outside the open-world suite's draw (:data:`NULL_FAMILIES`), reachable through :
 * :func:`maxwell_slip` — the Maxwell slip model (Goldfarb & Celanovic, J. Dyn. Syst. Meas.
   Control 119 (1997) 478, for piezo stacks): 5–15 spring–slider elements of random stiffness and
   slip limit — a Prandtl–Ishlinskii model with few sharp operators (the paper's SPI class).
+* :func:`sharp_preisach` — the textbook discrete Preisach model (Mayergoyz, Mathematical Models of
+  Hysteresis, 1991): ideal relays at the nodes of a regular grid of 10–40 levels, a staircase whose
+  jumps are far above the noise. A probe of a stage the baseline does not fit (docs/diagnosis.md,
+  "A Preisach stage of sharp relays on a coarse regular grid").
 
-The last three were added as a probe of families no one tuned the baseline on (docs/diagnosis.md,
-"Families outside the suite"); their records are development records now.
+Jiles–Atherton, Maxwell slip and Dahl were added as a probe of families no one tuned the baseline
+on (docs/diagnosis.md, "Families outside the suite"); their records are development records now.
 
 Every generator maps a 0–10 V drive to about ``travel_m`` of displacement and draws its shape from
 ``rng`` (a seeded :class:`numpy.random.Generator`), so a seed is a different stage.
@@ -54,7 +58,7 @@ from numba import njit
 from ...hysteresis import play
 
 __all__ = ["NULL_FAMILIES", "OTHER_FAMILIES", "scattered_preisach", "generalised_pi", "bouc_wen", "coleman_hodgdon",
-           "dahl", "jiles_atherton", "maxwell_slip", "null_plant"]
+           "dahl", "jiles_atherton", "maxwell_slip", "sharp_preisach", "null_plant"]
 
 V_MAX = 10.0
 #: Largest voltage substep (V) of the Bouc–Wen plant's explicit Euler integration (converged to
@@ -283,8 +287,30 @@ def maxwell_slip(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 1
 
 NULL_FAMILIES = {"scattered_preisach": scattered_preisach, "generalised_pi": generalised_pi, "bouc_wen": bouc_wen}
 #: Families outside the open-world suite's draw (its case plan and results stay comparable across versions).
+#: Grid sizes of :func:`sharp_preisach`.
+SHARP_GRID_LEVELS = (10, 16, 20, 25, 32, 40)
+
+
+def sharp_preisach(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6) -> np.ndarray:
+    """Displacement (m) of a discrete Preisach plant: ideal relays at the nodes α > β of a regular
+    grid of N levels over 0–10 V (N drawn from :data:`SHARP_GRID_LEVELS`), the density a Gaussian in
+    the relay's centre times an exponential fall in its width; the relay part 10–30 % of the travel,
+    the rest a slightly curved reversible part. Every crossing of a grid voltage is a jump of about
+    (relay part)/N: a staircase."""
+    n = int(rng.choice(SHARP_GRID_LEVELS))
+    nodes = np.linspace(0.0, V_MAX, n + 1)
+    up, down = np.meshgrid(nodes, nodes, indexing="ij")
+    above = up > down
+    up, down = up[above], down[above]
+    centre, spread, width = rng.uniform(3.0, 7.0), rng.uniform(2.0, 4.0), rng.uniform(1.0, 4.0)
+    density = np.exp(-(0.5 * (up + down) - centre) ** 2 / (2.0 * spread**2) - (up - down) / width)
+    relays = _relay_sum(np.asarray(v, dtype=np.float64), up, down, density) / density.sum()
+    x = rng.uniform(0.1, 0.3) * relays + v / V_MAX * (1.0 + rng.uniform(-0.05, 0.05) * v / V_MAX)
+    return _to_travel(x, travel_m)
+
+
 OTHER_FAMILIES = {"coleman_hodgdon": coleman_hodgdon, "dahl": dahl, "jiles_atherton": jiles_atherton,
-                  "maxwell_slip": maxwell_slip}
+                  "maxwell_slip": maxwell_slip, "sharp_preisach": sharp_preisach}
 
 
 def null_plant(family: str, v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6) -> np.ndarray:
