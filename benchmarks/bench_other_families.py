@@ -3,8 +3,8 @@
     PYTHONPATH=. nice -n 10 python benchmarks/bench_other_families.py [--seed 901] [--records 4] [--workers 2]
 
 For each family of :data:`afmsim.diagnosis.loops.null_plants.OTHER_FAMILIES` (Coleman–Hodgdon,
-Dahl, Jiles–Atherton, Maxwell slip), ``--records`` null records — no added effect — under the
-open-world suite's drives (:func:`afmsim.diagnosis.loops.open_world.record_drive`, its three timings
+Dahl, Jiles–Atherton, Maxwell slip, a discrete Preisach grid of ideal relays), ``--records`` null
+records — no added effect — under the open-world suite's drives (:func:`afmsim.diagnosis.loops.open_world.record_drive`, its three timings
 drawn), white sensor noise of 5–15 nm, no cross axis; each diagnosed in full as a user's record
 would be. Writes ``benchmarks/results/other_families.json`` (the machine, the git revision, every
 record's status, baseline family, held-out and training gap, verdict and time) and prints one line

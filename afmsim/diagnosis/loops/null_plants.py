@@ -285,8 +285,6 @@ def maxwell_slip(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 1
     return _to_travel(sliders @ stiffness + rng.uniform(0.5, 2.0) * stiffness.sum() * v, travel_m)
 
 
-NULL_FAMILIES = {"scattered_preisach": scattered_preisach, "generalised_pi": generalised_pi, "bouc_wen": bouc_wen}
-#: Families outside the open-world suite's draw (its case plan and results stay comparable across versions).
 #: Grid sizes of :func:`sharp_preisach`.
 SHARP_GRID_LEVELS = (10, 16, 20, 25, 32, 40)
 
@@ -309,6 +307,8 @@ def sharp_preisach(v: np.ndarray, rng: np.random.Generator, *, travel_m: float =
     return _to_travel(x, travel_m)
 
 
+NULL_FAMILIES = {"scattered_preisach": scattered_preisach, "generalised_pi": generalised_pi, "bouc_wen": bouc_wen}
+#: Families outside the open-world suite's draw (its case plan and results stay comparable across versions).
 OTHER_FAMILIES = {"coleman_hodgdon": coleman_hodgdon, "dahl": dahl, "jiles_atherton": jiles_atherton,
                   "maxwell_slip": maxwell_slip, "sharp_preisach": sharp_preisach}
 
