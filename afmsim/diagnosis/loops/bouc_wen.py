@@ -50,6 +50,8 @@ import numpy as np
 from numba import njit
 from scipy.optimize import minimize
 
+from .record import block_means
+
 __all__ = ["BoucWenShape", "bouc_wen_state", "bouc_wen_columns", "fit_bouc_wen_shape", "backbone_columns"]
 
 #: Integration: the linearised trapezoidal rule (second order, and stable for any β > |γ| and n:
@@ -172,9 +174,7 @@ def backbone_columns(u, block: int = 1) -> np.ndarray:
     Dahl stage so drawn (902/dahl/4) the Dahl law's own shape left 27× on the training part (1.0× at
     full rate); with the block means 1.2× held out."""
     uc = np.asarray(u, dtype=np.float64) - 0.5
-    cols = np.column_stack([uc**2, uc**3])
-    m = uc.size // block
-    return cols[: m * block].reshape(m, block, 2).mean(axis=1)
+    return block_means(np.column_stack([uc**2, uc**3]), block)
 
 
 def bouc_wen_columns(u, shape: BoucWenShape, block: int) -> np.ndarray:

@@ -88,6 +88,7 @@ from ..engine import decorrelation_length, noise_floor, sigma_from_second_differ
 from ...hysteresis import play
 from .bouc_wen import bouc_wen_columns, fit_bouc_wen_shape
 from .nnls import nnls_gram
+from .record import block_means
 
 __all__ = ["relay_features", "play_features", "fine_play_features", "drive_polarity", "solve_weights", "untrained_state", "in_trained_states", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
            "creep_gamma_from_bank", "dynamics_filters", "resonance_filter", "resonance_band", "estimate_resonance", "CANDIDATES"]
@@ -282,12 +283,6 @@ def relay_curvature(n_levels: int) -> np.ndarray:
     for col, coefficient in enumerate((1.0, -2.0, 1.0)):
         out[rows, [t[col] for t in triples]] = coefficient
     return out
-
-
-def block_means(a: np.ndarray, block: int) -> np.ndarray:
-    """Means of ``a``'s rows over consecutive blocks of ``block`` samples (a trailing part block dropped)."""
-    m = a.shape[0] // block
-    return a[: m * block].reshape(m, block, -1).mean(axis=1)
 
 
 def play_features(v, v_lo, v_hi, n_play=N_PLAY, block: int = 1) -> np.ndarray:

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["LoopRecord", "load_record", "MIN_SAMPLES", "MAX_SAMPLES", "UNITS", "NAMES"]
+__all__ = ["LoopRecord", "load_record", "block_means", "MIN_SAMPLES", "MAX_SAMPLES", "UNITS", "NAMES"]
 
 MIN_SAMPLES = 200
 MAX_SAMPLES = 8000
@@ -53,6 +53,15 @@ _QUANTITY_OF = {word: q for q, words in NAMES.items() for word in words}
 _HEADER = re.compile(r"^([A-Za-z][A-Za-z \-]*?)\s*(?:_\s*|\[\s*|\(\s*|\s+in\s+)([^\]\)\s]+)\s*[\]\)]?$")
 _COMMENT = ("#", "%", "//")
 
+
+
+def block_means(a: np.ndarray, block: int) -> np.ndarray:
+    """Means of ``a``'s rows (samples, axis 0) over consecutive blocks of ``block`` samples (a
+    trailing part block dropped): how a long record is decimated, and what a decimated record's
+    features are (:mod:`.model`, :mod:`.bouc_wen`)."""
+    a = np.asarray(a)
+    m = a.shape[0] // block
+    return a[: m * block].reshape((m, block) + a.shape[1:]).mean(axis=1)
 
 @dataclass(frozen=True)
 class LoopRecord:
@@ -204,10 +213,9 @@ def load_record(source, *, max_samples: int = MAX_SAMPLES) -> LoopRecord:
     v_fine = None
     if k > 1:
         m = t.size // k
-        blk = lambda a: a[: m * k].reshape(m, k).mean(axis=1)  # noqa: E731
         v_fine = np.ascontiguousarray(v[: m * k])
-        t, v, x = blk(t), blk(v), blk(x)
-        y = None if y is None else blk(y)
+        t, v, x = block_means(t, k), block_means(v, k), block_means(x, k)
+        y = None if y is None else block_means(y, k)
     return LoopRecord(t=np.ascontiguousarray(t), v=np.ascontiguousarray(v), x=np.ascontiguousarray(x),
                       y=None if y is None else np.ascontiguousarray(y), decimation=k if k > 1 else 1, source=label,
                       v_fine=v_fine)
