@@ -98,7 +98,8 @@ BLOCK_MARGIN = 0.01
 MIN_BLOCK_SHARE = 0.3
 BASELINE_NAMES = {"preisach": "relay Preisach grid (asymmetric)", "bouc_wen": "Bouc–Wen law (Duhem class)",
                   "play": "fine play operators + cubic (asymmetric PI)", "symmetric": "play operators (symmetric PI)",
-                  "dahl": "Dahl law (Duhem class)"}
+                  "dahl": "Dahl law (Duhem class)",
+                  "sharp": "ideal relays on the record's own grid (discrete Preisach)"}
 #: effects live at the drive's events (steps, turning points: gap-weighted blocks); creep with a resonance: each alone
 #: can leave the held-out gap no smaller, together they close it (pair lookahead); the verdict leads with the
 #: findings (on 702 open-world records at realistic magnitudes, top-1 457 → 467, no loss; on the closed suite,
@@ -299,6 +300,8 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                      "relay_levels": d.n_levels if front.kind == "preisach" else None,
                      "relay_smoothing": d.smoothing if front.kind == "preisach" else None,
                      "bouc_wen_shape": d.bouc_wen_shape.as_dict() if front.kind == "bouc_wen" else None,
+                     "sharp_grid": None if front.kind != "sharp" else
+                     {**{k: v for k, v in d.sharp_grid.items() if k != "levels"}, "levels_V": d.sharp_grid["levels"].tolist()},
                      "model_choice_scores": {str(k): v for k, v in d.choice_scores.items()},
                      "heldout_scoring": scoring, "drive_polarity": int(d.polarity),
                      "prior_spread_to_noise": None if spread_to_noise is None else round(spread_to_noise, 3),

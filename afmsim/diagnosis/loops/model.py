@@ -14,7 +14,8 @@ the Bouc–Wen law (``kind="bouc_wen"``, :mod:`.bouc_wen`: Duhem class, no retur
 which no relay density fits) or fine play operators
 (``kind="play"``, :func:`fine_play_features`: a Prandtl–Ishlinskii model with a cubic, the paper's
 class; a Preisach model whose density lies on lines, whose operator kinks the grid can only place
-at its cell edges), each with a linear drift, the cross axis' motion and a bank of the drive's
+at its cell edges) or, where the training part shows a comb of jumps on a regular grid, ideal
+relays on that grid (``kind="sharp"``, :mod:`.sharp_grid`: a discrete Preisach stage), each with a linear drift, the cross axis' motion and a bank of the drive's
 relaxations as free nuisance columns (:attr:`Design.nuisance`); with effects, the Bouc–Wen law's
 shape is then refitted jointly with them (:func:`fit_model`). Held-out samples are scored inside
 the training voltage range, before the first held-out excursion beyond it, and in relay states
@@ -86,9 +87,10 @@ from scipy.signal import cont2discrete, lfilter_zi
 
 from ..engine import decorrelation_length, noise_floor, sigma_from_second_differences
 from ...hysteresis import play
-from .bouc_wen import bouc_wen_columns, fit_bouc_wen_shape
+from .bouc_wen import backbone_columns, bouc_wen_columns, fit_bouc_wen_shape
 from .nnls import nnls_gram
 from .record import block_means
+from .sharp_grid import find_grid, grid_levels, place_levels, sharp_columns, undetermined_samples
 
 __all__ = ["relay_features", "play_features", "fine_play_features", "drive_polarity", "solve_weights", "untrained_state", "in_trained_states", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
            "creep_gamma_from_bank", "dynamics_filters", "resonance_filter", "resonance_band", "estimate_resonance", "CANDIDATES"]
@@ -143,7 +145,10 @@ SEARCH_LEVELS = 16
 QUIET_SHARE = 0.1
 QUIET_MIN = 100
 #: Hysteresis families of the rate-independent baseline (:meth:`Design.choose_family`).
-FAMILIES = ("preisach", "bouc_wen", "play")
+FAMILIES = ("preisach", "bouc_wen", "play", "sharp")
+#: Prior weight of the ``"sharp"`` family's relay density (:mod:`.sharp_grid`): the weaker of
+#: :data:`SMOOTHING_CHOICES` (a coarse grid's density changes by a large share from level to level).
+SHARP_SMOOTHING = 1e-5
 #: Play operators of the ``"play"`` family (:func:`fine_play_features`): half-widths k/N of the
 #: training range, k = 1…N, each in three starting states. On asymmetric Prandtl–Ishlinskii null
 #: records (10 operators + a cubic, two seeds × four drives; a check outside the open-world plants)
@@ -512,7 +517,7 @@ def creep_gamma_from_bank(c, taus, t1, t2) -> float:
 
 @dataclass(frozen=True)
 class ModelSpec:
-    kind: str = "preisach"  # "preisach" | "bouc_wen" | "play" | "symmetric"
+    kind: str = "preisach"  # "preisach" | "bouc_wen" | "play" | "sharp" | "symmetric"
     effects: tuple[str, ...] = ()
 
 
@@ -627,6 +632,10 @@ class Design:
         if family is not None and family not in FAMILIES:
             raise ValueError(f"family must be one of {FAMILIES}, got {family!r}")
         self.family = family or (self.choose_family() if n_levels is None else "preisach")
+        if self.family == "sharp":
+            if self.sharp_grid is None:
+                raise ValueError("family 'sharp' needs a grid of jumps in the training part, and this record shows none")
+            self.smoothing = SHARP_SMOOTHING
 
     def noise_floor(self, residual: np.ndarray) -> float:
         """Robust white-noise σ (m) of a model's ``residual`` on the training part, from its second
@@ -665,6 +674,14 @@ class Design:
         every held-out sample inside the range (outputs that depend on untrained relays are then
         scored too).
 
+        With the ``"sharp"`` family every rule leaves out the samples whose relay states depend on
+        where a threshold lies between the training voltages around it
+        (:func:`.sharp_grid.undetermined_samples`): the training part does not place it there; and
+        a trained state is one on the found grid's own relays as well (a descent below every
+        training reversal on a 10-level grid is a new combination of its relays that the 32-level
+        grid of the other families may call trained: 23 such samples, 28× the noise, on development
+        record 901/sharp_preisach/3).
+
         ``"wiped_excursions"`` replaces a rule that scored the samples after the voltage's next
         visit to the range's opposite end, as if that visit wiped the excursion out: relays switched
         on above the range whose down-threshold lies below it stay on, a lasting offset that no
@@ -687,8 +704,12 @@ class Design:
         the range) missed the stage by 640 nm, where the grid is clipped: 36× the noise on a null
         record, 8.4× before that hold (spent seed 22001, case 18)."""
         held = ~self.train & self.in_range
-        before = held & ~after_excursion(self.v, self.train, v_min=self.v_min, v_max=self.v_max)
         over_record = in_trained_states(self.relays_over_record(), self.train)
+        if self.family == "sharp":
+            levels = self.sharp_grid["levels"]
+            held &= ~undetermined_samples(self.vc, levels, self.train, self.block)
+            over_record &= in_trained_states(sharp_columns(self.vc, levels, self.block), self.train)
+        before = held & ~after_excursion(self.v, self.train, v_min=self.v_min, v_max=self.v_max)
         trained = before & self.within_range & over_record
         strictly_before = held & ~after_excursion(self.v, self.train, 0.0, v_min=self.v_min, v_max=self.v_max)
         for rule, scored in (("trained_states", trained), ("before_excursion", strictly_before)):
@@ -804,8 +825,9 @@ class Design:
 
     def choose_family(self) -> str:
         """Hysteresis family of the baseline — the relay grid (``"preisach"``), the Bouc–Wen law
-        (``"bouc_wen"``, :mod:`.bouc_wen`) or fine play operators (``"play"``,
-        :func:`fine_play_features`) — by generalised cross-validation on the whole training part:
+        (``"bouc_wen"``, :mod:`.bouc_wen`), fine play operators (``"play"``,
+        :func:`fine_play_features`) or, where the training part shows a grid of jumps, ideal relays
+        on it (``"sharp"``, :attr:`sharp_grid`; its df counts the placed thresholds too) — by generalised cross-validation on the whole training part:
         each family is fitted there (with the :attr:`nuisance` columns free) and scored by
         ``GCV = m·RSS / (m − df)²`` (m training samples; df the fit's effective parameter count,
         :func:`solve_weights` ``with_df``: the trace of its hat matrix on the non-negative
@@ -835,12 +857,42 @@ class Design:
         cols, plays = np.hstack([free, play_cols[:, :N_PLAY_FREE]]), play_cols[:, N_PLAY_FREE:]
         wf, wp, df = solve_weights(cols, plays, self.x, self.train, with_df=True)
         scores["play"] = (float(np.sum((cols @ wf + plays @ wp - self.x)[self.train] ** 2)), df)
+        if self.sharp_grid is not None:  # offered only where the record shows a grid of jumps
+            sharp = self.hyst("sharp")
+            cols, relays = np.hstack([free, sharp[:, :N_PLAY_FREE]]), sharp[:, N_PLAY_FREE:]
+            n = self.sharp_grid["levels"].size
+            wf, wp, df = solve_weights(cols, relays, self.x, self.train, smooth=relay_curvature(n),
+                                       smoothing=SHARP_SMOOTHING, with_df=True)
+            # the placed thresholds count as parameters
+            scores["sharp"] = (float(np.sum((cols @ wf + relays @ wp - self.x)[self.train] ** 2)), df + n)
         score = {}
         for family, (rss, df) in scores.items():
             score[family] = gcv(rss, df, m)
             self.choice_scores[f"gcv_{family}"] = float(np.sqrt(score[family]))
             self.choice_scores[f"df_{family}"] = float(df)
-        return min(("bouc_wen", "play", "preisach"), key=score.get)  # listed smallest model first: ties go to it
+        # listed smallest model first: ties go to it
+        return min((f for f in ("bouc_wen", "play", "preisach", "sharp") if f in score), key=score.get)
+
+    @cached_property
+    def sharp_grid(self) -> dict | None:
+        """The ``"sharp"`` family's grid (:mod:`.sharp_grid`), found and placed on the training part:
+        ``{"levels": thresholds (V), "spacing": V, "phase": V, "comb_ratio"}``; None where the
+        training part shows no grid of jumps (:func:`.sharp_grid.find_grid`)."""
+        found = find_grid(self.v, self.x, self.train, self.v_lo, self.v_hi)
+        if found is None:
+            return None
+        spacing, phase, ratio = found
+        levels = grid_levels(spacing, phase, self.v_lo, self.v_hi)
+        free = np.hstack([self.free, backbone_columns(self.normalised_voltage(), self.block), self.nuisance])
+        curvature = relay_curvature(levels.size)
+
+        def solve(cols):
+            wf, wp = solve_weights(free, self.polarity * cols, self.x, self.train, smooth=curvature,
+                                   smoothing=SHARP_SMOOTHING)
+            return free @ wf, self.polarity * wp
+
+        levels = place_levels(self.vc, self.block, self.x, self.train, levels, spacing, solve)
+        return {"levels": levels, "spacing": spacing, "phase": phase, "comb_ratio": ratio}
 
     @cached_property
     def nuisance(self) -> np.ndarray:
@@ -910,7 +962,8 @@ class Design:
         (``"symmetric"``), u², u³ and fine play operators in three starting states (``"play"``,
         :func:`fine_play_features`; the first :data:`N_PLAY_FREE` columns are free), or the backbone
         u'², u'³ and the state h of the Bouc–Wen law whose shape is fitted on the training part
-        (``"bouc_wen"``; the shape is kept in ``bouc_wen_shape``)."""
+        (``"bouc_wen"``; the shape is kept in ``bouc_wen_shape``), or u'², u'³ (free) and ideal relays
+        on the grid found in the record (``"sharp"``, :attr:`sharp_grid`)."""
         if kind not in self._hyst:
             if kind == "preisach":
                 self._hyst[kind] = self.relays(self.n_levels)
@@ -918,6 +971,11 @@ class Design:
                 u = self.normalised_voltage()
                 self.bouc_wen_shape, _ = fit_bouc_wen_shape(u, self.block, self.free, self.x, self.train)
                 self._hyst[kind] = bouc_wen_columns(u, self.bouc_wen_shape, self.block)
+            elif kind == "sharp":
+                if self.sharp_grid is None:
+                    raise ValueError("the record's training part shows no grid of jumps for the sharp-relay family")
+                self._hyst[kind] = np.hstack([backbone_columns(self.normalised_voltage(), self.block),
+                                              self.polarity * sharp_columns(self.vc, self.sharp_grid["levels"], self.block)])
             elif kind == "play":
                 poly, plays = fine_play_features(self.vc, self.v_lo, self.v_hi, block=self.block)
                 self._hyst[kind] = np.hstack([poly, self.polarity * self.refined_plays(poly, plays)])
@@ -1095,11 +1153,12 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
     effects' own free columns."""
     eff = set(spec.effects)
     kind = spec.kind
-    smooth = relay_curvature(d.n_levels + 1) if kind == "preisach" else None
+    smooth = relay_curvature(d.n_levels + 1) if kind == "preisach" else \
+        relay_curvature(d.sharp_grid["levels"].size) if kind == "sharp" else None
     # free offset + linear, then the non-negative hysteresis weights (relays, plays); the Bouc–Wen
     # backbone and state weights are free (their signs are the law's, not a density's)
     hyst_cols = np.hstack([d.free, hf])
-    n_free_h = d.free.shape[1] + (hf.shape[1] if kind == "bouc_wen" else N_PLAY_FREE if kind == "play" else 0)
+    n_free_h = d.free.shape[1] + (hf.shape[1] if kind == "bouc_wen" else N_PLAY_FREE if kind in ("play", "sharp") else 0)
     extra = []
     names = []
     if "drift" in eff:
@@ -1120,7 +1179,9 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
         names += [RATE_WIDTH_COMPETITOR] + ["_"] * (rate_cols.shape[1] - 1)
     extra = np.column_stack(extra) if extra else np.empty((d.t.size, 0))
     params: dict = {}
-    n_params = hyst_cols.shape[1] + extra.shape[1] + (3 if kind == "bouc_wen" else 0)  # + β, γ, n
+    # + β, γ, n; + the placed thresholds
+    n_params = hyst_cols.shape[1] + extra.shape[1] + (3 if kind == "bouc_wen" else 0) + \
+        (d.sharp_grid["levels"].size if kind == "sharp" else 0)
 
     fitted = _LagFits(d, hyst_cols, smooth, n_free_h, extra, creep="creep" in eff)
 

@@ -40,8 +40,9 @@ Outside the open-world suite's draw (:data:`NULL_FAMILIES`), reachable through :
   slip limit — a Prandtl–Ishlinskii model with few sharp operators (the paper's SPI class).
 * :func:`sharp_preisach` — the textbook discrete Preisach model (Mayergoyz, Mathematical Models of
   Hysteresis, 1991): ideal relays at the nodes of a regular grid of 10–40 levels, a staircase whose
-  jumps are far above the noise. A probe of a stage the baseline does not fit (docs/diagnosis.md,
-  "A Preisach stage of sharp relays on a coarse regular grid").
+  jumps are far above the noise. Added as the probe of a stage the baseline's smoothed grid did not
+  fit; the sharp-relay family (:mod:`.sharp_grid`) was built on its records of seeds 901, 902 and
+  905 (docs/diagnosis.md, "Sharp relays on the record's own grid").
 
 Jiles–Atherton, Maxwell slip and Dahl were added as a probe of families no one tuned the baseline
 on (docs/diagnosis.md, "Families outside the suite"); their records are development records now.

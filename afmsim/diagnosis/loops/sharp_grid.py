@@ -1,0 +1,290 @@
+"""Sharp relays on a grid found in the record: a baseline family for discrete Preisach stages
+(issue 11, point 3).
+
+The textbook discrete Preisach model switches ideal relays at the nodes of a regular grid of the
+voltage range. With a coarse grid (10–40 levels) every crossing of a grid voltage moves the stage
+by (loop part)/N — micrometres, a staircase — and the relay grid of :mod:`.model`, whose relays ramp
+across their cells at the record's own levels, ramps where such a stage jumps: 3–74× the noise on
+null records of such stages (docs/diagnosis.md, "Sharp relays on the record's own grid"). This
+family finds the stage's grid and places sharp relays on it, from the training part only:
+
+1. :func:`find_grid` — the spacing and phase of the grid, from a periodogram of the training part's
+   sample-to-sample increments over the voltage: each increment signed by its direction, a smooth
+   slope per direction removed (the reversible and the smooth hysteretic part), the jumps left as a
+   comb whose spacing is the grid's. Increments over more than a quarter of a trial spacing are left
+   out (they cannot place a jump). The first :data:`HARMONICS` harmonics are summed; the family is
+   offered only where the peak stands :data:`MIN_COMB_RATIO` × above the periodogram's median, away
+   from the ends of the trial spacings;
+2. :func:`place_levels` — each threshold placed on its own: a regular grid found to 0.1 % of its
+   spacing is still 0.01 V off at its far end, and under a slow drive that misassigns a sample or
+   two at every crossing of a micrometre jump. Level by level, with the other weights held, the
+   threshold moves to just above the training voltage (within a quarter spacing, between its
+   neighbours) that minimises the training error — a drive written by a converter sits on the same
+   voltages again and again, and which side of a threshold a sample lies on is what counts;
+   :data:`PLACEMENT_SWEEPS` sweeps, the weights refitted after each;
+3. :func:`sharp_columns` — relay (i, j ≤ i) on at or above level i, off below level j (ideal
+   relays, from rest below the first sample), at the full rate and block-averaged as the record;
+4. :func:`undetermined_samples` — a threshold anywhere between the training voltages just below and
+   just above it fits the training part alike; a held-out voltage inside that interval (a
+   periodic training drive visits the same voltages again and again, the held-out part others)
+   switches a relay that the training part does not place. Such samples are not scored
+   (:meth:`.model.Design.scored`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+from scipy.linalg import solve_triangular
+from scipy.optimize import nnls
+
+__all__ = ["find_grid", "grid_levels", "place_levels", "sharp_columns", "relay_pairs", "undetermined_samples",
+           "MIN_COMB_RATIO", "MAX_LEVELS"]
+
+#: Harmonics of the grid spacing summed in the periodogram of :func:`find_grid`.
+HARMONICS = 3
+#: The comb's peak over the periodogram's median at which the family is offered. On sharp-relay
+#: grid stages (development seed 905) the peak stood 7–48× above it where the drive moves in small
+#: increments (sines, noise) and 1.3× under steps; see docs/diagnosis.md for the suite's records.
+MIN_COMB_RATIO = 5.0
+#: A line at 1/(k·s) this strong against the one at 1/s makes the grid's spacing k·s (:func:`find_grid`).
+SUBHARMONIC_SHARE = 0.5
+#: Fewest and most grid levels over the training range that :func:`find_grid` tries (the relay
+#: count grows with the square: 48 levels are 1,176 relays, twice the 32-level grid's).
+MIN_LEVELS, MAX_LEVELS = 6, 48
+#: Trial spacings of the periodogram (log-spaced between the two level counts), and the share of
+#: them at either end where a peak is not taken for a grid: on the spent open-world records of
+#: 47001 the smooth stages' largest peak (7.5× the median, a Bouc–Wen stage under triangles) lay on
+#: the coarsest spacing tried.
+N_TRIAL_SPACINGS = 1000
+EDGE_SHARE = 0.01
+#: Sweeps of the threshold placement, and the most sample voltages tried per threshold and sweep.
+PLACEMENT_SWEEPS = 3
+MAX_CANDIDATES = 200
+#: Evenly spaced training voltages per threshold and sweep tried with the level's weights refitted.
+REFIT_CANDIDATES = 8
+#: Legendre degree of the smooth slope removed from the increments, per direction.
+SLOPE_DEGREE = 6
+
+
+@njit(cache=True, nogil=True)
+def _sharp_relays(v, up, down, block):  # pragma: no cover - compiled
+    m = v.size // block
+    out = np.zeros((m, up.size))
+    state = np.zeros(up.size)
+    for r in range(up.size):
+        state[r] = 1.0 if v[0] >= up[r] else 0.0
+    w = 1.0 / block
+    for t in range(m * block):
+        row = out[t // block]
+        for r in range(up.size):
+            if v[t] >= up[r]:
+                state[r] = 1.0
+            elif v[t] < down[r]:
+                state[r] = 0.0
+            row[r] += w * state[r]
+    return out
+
+
+def relay_pairs(n_levels: int) -> tuple[np.ndarray, np.ndarray]:
+    """Level indices (i, j ≤ i) of the relays, in the order of :func:`.model.relay_curvature`."""
+    i, j = np.tril_indices(n_levels)
+    order = np.lexsort((j, i))
+    return i[order], j[order]
+
+
+def sharp_columns(v_fine, levels, block: int = 1, pairs=None) -> np.ndarray:
+    """Ideal relays (i, j ≤ i) on the voltage ``v_fine`` (V, full rate): on at or above
+    ``levels[i]``, off below ``levels[j]``, from rest below the first sample; block means of
+    ``block`` samples. ``pairs``: a subset of :func:`relay_pairs` (default: all)."""
+    i, j = relay_pairs(len(levels)) if pairs is None else pairs
+    levels = np.asarray(levels, dtype=np.float64)
+    return _sharp_relays(np.ascontiguousarray(v_fine, dtype=np.float64), levels[i], levels[j], int(block))
+
+
+def training_voltages(v_fine, train, block: int) -> np.ndarray:
+    """The distinct full-rate voltages (V, sorted) of the training part's samples."""
+    fine_train = np.repeat(np.asarray(train, bool), block)
+    v_fine = np.asarray(v_fine, dtype=np.float64)[: fine_train.size]
+    return np.unique(v_fine[fine_train[: v_fine.size]])
+
+
+def threshold_nudge(v_fine) -> float:
+    """How far (V) above a sample voltage a threshold is placed: a billionth of the voltage range."""
+    return 1e-9 * (float(np.ptp(v_fine)) or 1.0)
+
+
+def undetermined_samples(v_fine, levels, train, block: int = 1) -> np.ndarray:
+    """Samples (of the block-mean record) whose relay states the training part does not determine.
+
+    Each threshold may lie anywhere from just above the training voltage below it to the training
+    voltage at or above it without changing a training state; the relays' states are monotone in
+    their thresholds, so every placement's states lie between those of the two extreme placements
+    (all thresholds at the low ends, all at the high ends). A sample where these differ depends on
+    where in its interval a threshold lies — a held-out voltage between two training voltages, and
+    the relay it switched, until its other threshold resets it."""
+    v_fine = np.asarray(v_fine, dtype=np.float64)
+    levels = np.asarray(levels, dtype=np.float64)
+    v_train = training_voltages(v_fine, train, block)
+    below = np.searchsorted(v_train, levels, side="left")  # first training voltage ≥ the level
+    low = np.where(below > 0, v_train[np.maximum(below - 1, 0)] + threshold_nudge(v_fine), -np.inf)
+    high = np.where(below < v_train.size, v_train[np.minimum(below, v_train.size - 1)], np.inf)
+    low, high = np.minimum(low, levels), np.maximum(high, levels)
+    low, high = np.where(np.isfinite(low), low, levels), np.where(np.isfinite(high), high, levels)
+    return np.any(np.abs(sharp_columns(v_fine, low, block) - sharp_columns(v_fine, high, block)) > 1e-12, axis=1)
+
+
+def _jump_increments(v, x, train):
+    """Training increments: |Δv|, the direction-signed Δx less a smooth slope per direction, and the
+    voltage at the increment's middle."""
+    k = np.flatnonzero(train[:-1] & train[1:])
+    dv = v[k + 1] - v[k]
+    moves = dv != 0
+    k, dv = k[moves], dv[moves]
+    sign = np.sign(dv)
+    dx = (x[k + 1] - x[k]) * sign
+    mid = 0.5 * (v[k] + v[k + 1])
+    jumps = np.empty_like(dx)
+    span = float(np.ptp(mid)) or 1.0
+    for direction in (-1.0, 1.0):
+        m = sign == direction
+        if m.sum() <= 2 * (SLOPE_DEGREE + 1):
+            jumps[m] = dx[m]
+            continue
+        basis = np.abs(dv[m])[:, None] * np.polynomial.legendre.legvander(2.0 * (mid[m] - mid.min()) / span - 1.0, SLOPE_DEGREE)
+        jumps[m] = dx[m] - basis @ np.linalg.lstsq(basis, dx[m], rcond=None)[0]
+    return np.abs(dv), jumps, mid
+
+
+def find_grid(v, x, train, v_lo: float, v_hi: float) -> tuple[float, float, float] | None:
+    """``(spacing, phase, peak ratio)`` (V, V, –) of a regular grid of jumps in the record's training
+    part — levels at ``phase + k·spacing`` — or None where the periodogram's peak is under
+    :data:`MIN_COMB_RATIO` × its median (no comb: a smooth stage, or a drive of large steps)."""
+    dv, jumps, mid = _jump_increments(np.asarray(v, float), np.asarray(x, float), np.asarray(train, bool))
+    if dv.size < 100:
+        return None
+    def line(spacing, harmonics):
+        """(summed normalised amplitude of the first ``harmonics`` harmonics, phase of the first)."""
+        ok = dv < 0.25 * spacing
+        if ok.sum() < 100:
+            return 0.0, 0.0
+        e, angle = jumps[ok], 2.0 * np.pi * mid[ok] / spacing
+        first = np.sum(e * np.exp(-1j * angle))
+        total = abs(first) + sum(abs(np.sum(e * np.exp(-1j * h * angle))) for h in range(2, harmonics + 1))
+        return total / (np.sqrt(np.sum(e**2) * e.size) + 1e-300), -np.angle(first) / (2.0 * np.pi) * spacing
+
+    spacings = (v_hi - v_lo) / np.geomspace(MIN_LEVELS, MAX_LEVELS, N_TRIAL_SPACINGS)
+    power = np.array([line(spacing, HARMONICS)[0] for spacing in spacings])
+    best = int(np.argmax(power))
+    ratio = float(power[best] / (np.median(power[power > 0]) + 1e-300)) if np.any(power > 0) else 0.0
+    if ratio < MIN_COMB_RATIO or not EDGE_SHARE * spacings.size <= best < (1.0 - EDGE_SHARE) * spacings.size:
+        return None  # no comb, or a peak at the edge of the trial spacings (the slope's leakage, not a grid)
+    spacing = float(spacings[best])
+    # a comb of ideal jumps has every harmonic: the sum peaks at a third or a half of the grid's
+    # spacing as well. A grid of spacing s has no line at 1/(k·s); where one stands, the grid is k·s.
+    fundamental = line(spacing, 1)[0]
+    for k in (5, 4, 3, 2):
+        if k * spacing <= (v_hi - v_lo) / MIN_LEVELS and line(k * spacing, 1)[0] >= SUBHARMONIC_SHARE * fundamental:
+            spacing *= k
+            break
+    return spacing, float(line(spacing, 1)[1] % spacing), ratio
+
+
+def grid_levels(spacing: float, phase: float, v_lo: float, v_hi: float) -> np.ndarray:
+    """The grid's levels (V) from one below the training range's bottom to its top."""
+    first = np.floor((v_lo - phase) / spacing)
+    levels = phase + np.arange(first, np.ceil((v_hi - phase) / spacing)) * spacing
+    return levels[levels <= v_hi]
+
+
+def place_levels(v_fine, block: int, x, train, levels, spacing: float, solve) -> np.ndarray:
+    """Thresholds (V) placed one by one (:data:`PLACEMENT_SWEEPS` sweeps, the weights refitted by
+    ``solve`` after each): each moves to just above the training voltage within a quarter
+    ``spacing`` of it (and between its neighbours) that minimises the training error. Every such
+    voltage is tried with the weights held (at most :data:`MAX_CANDIDATES`, evenly among them, then
+    every one between the best one's neighbours); the best of these, the level's place now and
+    :data:`REFIT_CANDIDATES` evenly spaced ones are tried again with the weights of the level's own
+    relays refitted (non-negative): with the weights held, a level whose relays no training sample
+    switched has no weight to move — a grid found 0.004 V below a triangle's lowest voltage left
+    its relays never reset and its level there (4.2× the noise on training; 1.0× placed just above
+    that voltage, development record 901/sharp_preisach/3).
+    The placement starts from the grid as found or from every level just above its nearest training
+    voltage, whichever fits better: with the weights held, levels that all sit on the wrong side of
+    the drive's own voltages do not move one by one (a 25-level stage under triangles written on its
+    nodes, development record 902/sharp_preisach/1: 5.7× the noise on training as found, 1.0× with
+    the stage's own levels).
+    ``solve(columns)`` fits the relay columns (non-negative) with the design's free columns and
+    returns ``(the free columns' part of the prediction, the relay weights)``."""
+    levels = np.array(levels, dtype=np.float64)
+    v_fine = np.asarray(v_fine, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    i_all, j_all = relay_pairs(levels.size)
+    train = np.asarray(train, bool)
+    v_train = training_voltages(v_fine, train, block)
+    nudge = threshold_nudge(v_fine)
+
+    def train_error(trial):
+        cols = sharp_columns(v_fine, trial, block)
+        base, w = solve(cols)
+        return float(np.sum((base + cols @ w - x)[train] ** 2))
+
+    # a drive written by a converter sits on the grid's own voltages, where which side of a shared
+    # threshold a sample lies on is set by ties: the grid as found, or every level just above its
+    # nearest training voltage, whichever fits the training part better, starts the placement
+    nearest = np.clip(np.searchsorted(v_train, levels), 1, v_train.size - 1)
+    nearest -= (levels - v_train[nearest - 1]) < (v_train[nearest] - levels)
+    snapped = v_train[nearest] + nudge
+    if np.all(np.diff(snapped) > 0) and train_error(snapped) < train_error(levels):
+        levels = snapped
+    for _ in range(PLACEMENT_SWEEPS):
+        cols = sharp_columns(v_fine, levels, block)
+        base, w = solve(cols)
+        prediction = base + cols @ w
+        for level in range(levels.size):
+            touched = np.flatnonzero((i_all == level) | (j_all == level))
+            pairs = (i_all[touched], j_all[touched])
+            rest = prediction - cols[:, touched] @ w[touched]
+            below = levels[level - 1] if level > 0 else -np.inf
+            above = levels[level + 1] if level + 1 < levels.size else np.inf
+            low, high = max(below, levels[level] - 0.25 * spacing), min(above, levels[level] + 0.25 * spacing)
+            voltages = v_train[(v_train > low) & (v_train < high)] + nudge
+            target = (x - rest)[train]
+
+            def trial_columns(candidate):
+                trial = levels.copy()
+                trial[level] = candidate
+                return sharp_columns(v_fine, trial, block, pairs)
+
+            def held_error(candidate):
+                return float(np.sum((trial_columns(candidate)[train] @ w[touched] - target) ** 2))
+
+            def refit(candidate):
+                """(training error, the level's relay weights) with those weights refitted."""
+                own = trial_columns(candidate)[train]
+                gram = own.T @ own
+                gram[np.diag_indices_from(gram)] += 1e-12 * (np.trace(gram) + 1e-300)
+                r = np.linalg.cholesky(gram).T
+                b = solve_triangular(r, own.T @ target, trans="T")
+                weights, misfit = nnls(r, b)
+                return float(target @ target - b @ b + misfit**2), weights
+
+            coarse = voltages if voltages.size <= MAX_CANDIDATES else \
+                voltages[np.linspace(0, voltages.size - 1, MAX_CANDIDATES).round().astype(int)]
+            errors = np.array([held_error(c) for c in coarse])
+            candidates = list(coarse[np.argsort(errors, kind="stable")[:1]])
+            if voltages.size > MAX_CANDIDATES:
+                k = int(np.argmin(errors))
+                finer = voltages[(voltages > coarse[max(k - 1, 0)]) & (voltages < coarse[min(k + 1, coarse.size - 1)])]
+                if finer.size:
+                    candidates.append(finer[int(np.argmin([held_error(c) for c in finer]))])
+            if voltages.size:
+                candidates += list(voltages[np.linspace(0, voltages.size - 1, REFIT_CANDIDATES).round().astype(int)])
+            best_error, best_weights = refit(levels[level])
+            for candidate in dict.fromkeys(candidates):
+                error, weights = refit(candidate)
+                if error < best_error:
+                    best_error, best_weights, levels[level] = error, weights, candidate
+            w[touched] = best_weights
+            cols[:, touched] = trial_columns(levels[level])
+            prediction = rest + cols[:, touched] @ w[touched]
+    return levels
