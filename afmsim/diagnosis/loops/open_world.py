@@ -163,8 +163,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: its result and docs, no change to the loop diagnosis); 53001–53003 first for the Duhem family's
 #: Dahl law and the block-mean backbone of decimated records (:mod:`.bouc_wen`; prompted by Dahl and
 #: Coleman–Hodgdon stages outside the suite, development seeds 901–902 of bench_other_families,
-#: measured on the spent records of 47001–47003).
-FRESH_SEEDS = (53001, 53002, 53003)
+#: measured on the spent records of 47001–47003); 54001–54003 first for the sharp-relay family of
+#: discrete Preisach stages (:mod:`.sharp_grid`; prompted by sharp-relay stages outside the suite,
+#: development seeds 901, 902 and 905, measured on the spent records of 47001–47003: no verdict changed).
+FRESH_SEEDS = (54001, 54002, 54003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
