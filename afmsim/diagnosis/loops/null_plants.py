@@ -42,7 +42,8 @@ Outside the open-world suite's draw (:data:`NULL_FAMILIES`), reachable through :
   Hysteresis, 1991): ideal relays at the nodes of a regular grid of 10–40 levels, a staircase whose
   jumps are far above the noise. Added as the probe of a stage the baseline's smoothed grid did not
   fit; the sharp-relay family (:mod:`.sharp_grid`) was built on its records of seeds 901, 902 and
-  905 (docs/diagnosis.md, "Sharp relays on the record's own grid").
+  905 (docs/diagnosis.md, "Sharp relays on the record's own grid"); :func:`sharp_preisach_fine`
+  draws grids of 50–128 levels (the family's fine-grid form was built on probe seeds 906–907).
 
 Jiles–Atherton, Maxwell slip and Dahl were added as a probe of families no one tuned the baseline
 on (docs/diagnosis.md, "Families outside the suite"); their records are development records now.
@@ -59,7 +60,7 @@ from numba import njit
 from ...hysteresis import play
 
 __all__ = ["NULL_FAMILIES", "OTHER_FAMILIES", "scattered_preisach", "generalised_pi", "bouc_wen", "coleman_hodgdon",
-           "dahl", "jiles_atherton", "maxwell_slip", "sharp_preisach", "null_plant"]
+           "dahl", "jiles_atherton", "maxwell_slip", "sharp_preisach", "sharp_preisach_fine", "null_plant"]
 
 V_MAX = 10.0
 #: Largest voltage substep (V) of the Bouc–Wen plant's explicit Euler integration (converged to
@@ -286,17 +287,25 @@ def maxwell_slip(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 1
     return _to_travel(sliders @ stiffness + rng.uniform(0.5, 2.0) * stiffness.sum() * v, travel_m)
 
 
-#: Grid sizes of :func:`sharp_preisach`.
+#: Grid sizes of :func:`sharp_preisach`, and of :func:`sharp_preisach_fine`.
 SHARP_GRID_LEVELS = (10, 16, 20, 25, 32, 40)
+FINE_GRID_LEVELS = (50, 64, 80, 100, 128)
 
 
-def sharp_preisach(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6) -> np.ndarray:
+def sharp_preisach_fine(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6) -> np.ndarray:
+    """:func:`sharp_preisach` on a finer grid (N drawn from :data:`FINE_GRID_LEVELS`): jumps of
+    0.1–0.5 µm, still 10–100× a stage's noise."""
+    return sharp_preisach(v, rng, travel_m=travel_m, grid_levels=FINE_GRID_LEVELS)
+
+
+def sharp_preisach(v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6,
+                   grid_levels: tuple = SHARP_GRID_LEVELS) -> np.ndarray:
     """Displacement (m) of a discrete Preisach plant: ideal relays at the nodes α > β of a regular
-    grid of N levels over 0–10 V (N drawn from :data:`SHARP_GRID_LEVELS`), the density a Gaussian in
+    grid of N levels over 0–10 V (N drawn from ``grid_levels``), the density a Gaussian in
     the relay's centre times an exponential fall in its width; the relay part 10–30 % of the travel,
     the rest a slightly curved reversible part. Every crossing of a grid voltage is a jump of about
     (relay part)/N: a staircase."""
-    n = int(rng.choice(SHARP_GRID_LEVELS))
+    n = int(rng.choice(grid_levels))
     nodes = np.linspace(0.0, V_MAX, n + 1)
     up, down = np.meshgrid(nodes, nodes, indexing="ij")
     above = up > down
@@ -311,7 +320,8 @@ def sharp_preisach(v: np.ndarray, rng: np.random.Generator, *, travel_m: float =
 NULL_FAMILIES = {"scattered_preisach": scattered_preisach, "generalised_pi": generalised_pi, "bouc_wen": bouc_wen}
 #: Families outside the open-world suite's draw (its case plan and results stay comparable across versions).
 OTHER_FAMILIES = {"coleman_hodgdon": coleman_hodgdon, "dahl": dahl, "jiles_atherton": jiles_atherton,
-                  "maxwell_slip": maxwell_slip, "sharp_preisach": sharp_preisach}
+                  "maxwell_slip": maxwell_slip, "sharp_preisach": sharp_preisach,
+                  "sharp_preisach_fine": sharp_preisach_fine}
 
 
 def null_plant(family: str, v: np.ndarray, rng: np.random.Generator, *, travel_m: float = 100e-6) -> np.ndarray:

@@ -38,8 +38,9 @@ from numba import njit
 from scipy.linalg import solve_triangular
 from scipy.optimize import nnls
 
-__all__ = ["find_grid", "grid_levels", "place_levels", "sharp_columns", "relay_pairs", "undetermined_samples",
-           "MIN_COMB_RATIO", "MAX_LEVELS"]
+__all__ = ["find_grid", "grid_levels", "place_levels", "place_at_jumps", "sharp_columns", "relay_columns",
+           "density_map", "density_size", "relay_pairs", "undetermined_samples", "MIN_COMB_RATIO", "MAX_LEVELS",
+           "FREE_LEVELS"]
 
 #: Harmonics of the grid spacing summed in the periodogram of :func:`find_grid`.
 HARMONICS = 3
@@ -49,9 +50,19 @@ HARMONICS = 3
 MIN_COMB_RATIO = 5.0
 #: A line at 1/(k·s) this strong against the one at 1/s makes the grid's spacing k·s (:func:`find_grid`).
 SUBHARMONIC_SHARE = 0.5
-#: Fewest and most grid levels over the training range that :func:`find_grid` tries (the relay
-#: count grows with the square: 48 levels are 1,176 relays, twice the 32-level grid's).
-MIN_LEVELS, MAX_LEVELS = 6, 48
+#: Fewest and most grid levels over the training range that :func:`find_grid` tries. A stage of
+#: 64 levels over 0–10 V (about 50 over a training range) was left at 9–13× the noise when the
+#: most was 48 (development seed 906).
+MIN_LEVELS, MAX_LEVELS = 6, 128
+#: Up to this many levels each relay has its own weight (the relay count grows with the square: 48
+#: levels are 1,176 relays, twice the 32-level grid's); on a finer grid the relays' density is
+#: bilinear on a coarse grid of :data:`DENSITY_LEVELS` levels (:func:`density_map`), and the
+#: thresholds are placed at the jumps (:func:`place_at_jumps`) instead of by the training error.
+FREE_LEVELS = 48
+DENSITY_LEVELS = 24
+#: Training voltages nearest to each fine-grid threshold tried by :func:`refine_fine_levels`, and its sweeps.
+FINE_CANDIDATES = 40
+FINE_SWEEPS = 2
 #: Trial spacings of the periodogram (log-spaced between the two level counts), and the share of
 #: them at either end where a peak is not taken for a grid: on the spent open-world records of
 #: 47001 the smooth stages' largest peak (7.5× the median, a Bouc–Wen stage under triangles) lay on
@@ -65,6 +76,55 @@ MAX_CANDIDATES = 200
 REFIT_CANDIDATES = 8
 #: Legendre degree of the smooth slope removed from the increments, per direction.
 SLOPE_DEGREE = 6
+
+
+@njit(cache=True, nogil=True)
+def _mapped_relays(v, up, down, columns, weights, n_columns, block):  # pragma: no cover - compiled
+    """Block means of Σ_r weights[r, k]·state_r in column columns[r, k] (ideal relays, as below)."""
+    m = v.size // block
+    out = np.zeros((m, n_columns))
+    state = np.zeros(up.size, dtype=np.bool_)
+    for r in range(up.size):
+        state[r] = v[0] >= up[r]
+    w = 1.0 / block
+    for t in range(m * block):
+        row = out[t // block]
+        for r in range(up.size):
+            if v[t] >= up[r]:
+                state[r] = True
+            elif v[t] < down[r]:
+                state[r] = False
+            if state[r]:
+                for k in range(columns.shape[1]):
+                    row[columns[r, k]] += w * weights[r, k]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _states_differ(v, up_a, down_a, up_b, down_b, block):  # pragma: no cover - compiled
+    """Per block: whether any relay's state differs between thresholds (up_a, down_a) and (up_b, down_b)."""
+    m = v.size // block
+    out = np.zeros(m, dtype=np.bool_)
+    a = np.zeros(up_a.size, dtype=np.bool_)
+    b = np.zeros(up_a.size, dtype=np.bool_)
+    for r in range(up_a.size):
+        a[r] = v[0] >= up_a[r]
+        b[r] = v[0] >= up_b[r]
+    for t in range(m * block):
+        differ = False
+        for r in range(up_a.size):
+            if v[t] >= up_a[r]:
+                a[r] = True
+            elif v[t] < down_a[r]:
+                a[r] = False
+            if v[t] >= up_b[r]:
+                b[r] = True
+            elif v[t] < down_b[r]:
+                b[r] = False
+            differ = differ or (a[r] != b[r])
+        if differ:
+            out[t // block] = True
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -102,11 +162,56 @@ def sharp_columns(v_fine, levels, block: int = 1, pairs=None) -> np.ndarray:
     return _sharp_relays(np.ascontiguousarray(v_fine, dtype=np.float64), levels[i], levels[j], int(block))
 
 
+def density_map(n_levels: int, n_density: int = DENSITY_LEVELS) -> tuple[np.ndarray, np.ndarray]:
+    """Each relay (i, j ≤ i) of an ``n_levels`` grid as bilinear weights on the four nearest nodes
+    of an ``n_density`` grid of the density (nodes in the order of :func:`relay_pairs`; a neighbour
+    above the diagonal, j > i, folds onto the diagonal node): ``(node indices, weights)``, both
+    (relays × 4)."""
+    i, j = relay_pairs(n_levels)
+    scale = (n_density - 1) / max(n_levels - 1, 1)
+    fi, fj = i * scale, j * scale
+    i0 = np.minimum(np.floor(fi).astype(int), n_density - 2)
+    j0 = np.minimum(np.floor(fj).astype(int), n_density - 2)
+    di, dj = fi - i0, fj - j0
+    node = lambda a, b: (lambda a, b: a * (a + 1) // 2 + b)(a, np.minimum(b, a))  # noqa: E731
+    columns = np.column_stack([node(i0, j0), node(i0 + 1, j0), node(i0, j0 + 1), node(i0 + 1, j0 + 1)])
+    weights = np.column_stack([(1 - di) * (1 - dj), di * (1 - dj), (1 - di) * dj, di * dj])
+    return columns.astype(np.int64), weights
+
+
+def density_size(n_levels: int) -> int:
+    """Levels of the grid whose density the relay weights are (:data:`FREE_LEVELS`, :func:`density_map`)."""
+    return n_levels if n_levels <= FREE_LEVELS else DENSITY_LEVELS
+
+
+def relay_columns(v_fine, levels, block: int = 1) -> np.ndarray:
+    """The family's relay columns on ``levels``: one per relay (:func:`sharp_columns`) up to
+    :data:`FREE_LEVELS` levels; on a finer grid one per node of the density's coarse grid, each the
+    sum of the relays' states weighted by their bilinear share of that node (:func:`density_map`)."""
+    levels = np.asarray(levels, dtype=np.float64)
+    if levels.size <= FREE_LEVELS:
+        return sharp_columns(v_fine, levels, block)
+    i, j = relay_pairs(levels.size)
+    columns, weights = density_map(levels.size)
+    n = DENSITY_LEVELS * (DENSITY_LEVELS + 1) // 2
+    return _mapped_relays(np.ascontiguousarray(v_fine, dtype=np.float64), levels[i], levels[j], columns, weights, n,
+                          int(block))
+
+
 def training_voltages(v_fine, train, block: int) -> np.ndarray:
     """The distinct full-rate voltages (V, sorted) of the training part's samples."""
     fine_train = np.repeat(np.asarray(train, bool), block)
     v_fine = np.asarray(v_fine, dtype=np.float64)[: fine_train.size]
     return np.unique(v_fine[fine_train[: v_fine.size]])
+
+
+def snap_to_training(v_fine, train, block: int, levels) -> np.ndarray:
+    """Each level (V) moved to just above its nearest training voltage (:func:`threshold_nudge`)."""
+    v_train = training_voltages(v_fine, train, block)
+    levels = np.asarray(levels, dtype=np.float64)
+    nearest = np.clip(np.searchsorted(v_train, levels), 1, max(v_train.size - 1, 1))
+    nearest -= (levels - v_train[nearest - 1]) < (v_train[nearest] - levels)
+    return v_train[nearest] + threshold_nudge(v_fine)
 
 
 def threshold_nudge(v_fine) -> float:
@@ -131,12 +236,13 @@ def undetermined_samples(v_fine, levels, train, block: int = 1) -> np.ndarray:
     high = np.where(below < v_train.size, v_train[np.minimum(below, v_train.size - 1)], np.inf)
     low, high = np.minimum(low, levels), np.maximum(high, levels)
     low, high = np.where(np.isfinite(low), low, levels), np.where(np.isfinite(high), high, levels)
-    return np.any(np.abs(sharp_columns(v_fine, low, block) - sharp_columns(v_fine, high, block)) > 1e-12, axis=1)
+    i, j = relay_pairs(levels.size)
+    return _states_differ(v_fine, low[i], low[j], high[i], high[j], int(block))
 
 
 def _jump_increments(v, x, train):
-    """Training increments: |Δv|, the direction-signed Δx less a smooth slope per direction, and the
-    voltage at the increment's middle."""
+    """Training increments: |Δv|, the direction-signed Δx less a smooth slope per direction, the
+    voltage at the increment's middle, and its lower and upper end."""
     k = np.flatnonzero(train[:-1] & train[1:])
     dv = v[k + 1] - v[k]
     moves = dv != 0
@@ -153,14 +259,14 @@ def _jump_increments(v, x, train):
             continue
         basis = np.abs(dv[m])[:, None] * np.polynomial.legendre.legvander(2.0 * (mid[m] - mid.min()) / span - 1.0, SLOPE_DEGREE)
         jumps[m] = dx[m] - basis @ np.linalg.lstsq(basis, dx[m], rcond=None)[0]
-    return np.abs(dv), jumps, mid
+    return np.abs(dv), jumps, mid, np.minimum(v[k], v[k + 1]), np.maximum(v[k], v[k + 1])
 
 
 def find_grid(v, x, train, v_lo: float, v_hi: float) -> tuple[float, float, float] | None:
     """``(spacing, phase, peak ratio)`` (V, V, –) of a regular grid of jumps in the record's training
     part — levels at ``phase + k·spacing`` — or None where the periodogram's peak is under
     :data:`MIN_COMB_RATIO` × its median (no comb: a smooth stage, or a drive of large steps)."""
-    dv, jumps, mid = _jump_increments(np.asarray(v, float), np.asarray(x, float), np.asarray(train, bool))
+    dv, jumps, mid, _, _ = _jump_increments(np.asarray(v, float), np.asarray(x, float), np.asarray(train, bool))
     if dv.size < 100:
         return None
     def line(spacing, harmonics):
@@ -197,7 +303,7 @@ def grid_levels(spacing: float, phase: float, v_lo: float, v_hi: float) -> np.nd
     return levels[levels <= v_hi]
 
 
-def place_levels(v_fine, block: int, x, train, levels, spacing: float, solve) -> np.ndarray:
+def place_levels(v_fine, block: int, x, train, levels, spacing: float, solve, rss_bar: float | None = None):
     """Thresholds (V) placed one by one (:data:`PLACEMENT_SWEEPS` sweeps, the weights refitted by
     ``solve`` after each): each moves to just above the training voltage within a quarter
     ``spacing`` of it (and between its neighbours) that minimises the training error. Every such
@@ -214,7 +320,8 @@ def place_levels(v_fine, block: int, x, train, levels, spacing: float, solve) ->
     nodes, development record 902/sharp_preisach/1: 5.7× the noise on training as found, 1.0× with
     the stage's own levels).
     ``solve(columns)`` fits the relay columns (non-negative) with the design's free columns and
-    returns ``(the free columns' part of the prediction, the relay weights)``."""
+    returns ``(the free columns' part of the prediction, the relay weights)``. None where the start
+    fits the training part no better than ``rss_bar`` (m², a training residual sum of squares)."""
     levels = np.array(levels, dtype=np.float64)
     v_fine = np.asarray(v_fine, dtype=np.float64)
     x = np.asarray(x, dtype=np.float64)
@@ -231,11 +338,14 @@ def place_levels(v_fine, block: int, x, train, levels, spacing: float, solve) ->
     # a drive written by a converter sits on the grid's own voltages, where which side of a shared
     # threshold a sample lies on is set by ties: the grid as found, or every level just above its
     # nearest training voltage, whichever fits the training part better, starts the placement
-    nearest = np.clip(np.searchsorted(v_train, levels), 1, v_train.size - 1)
-    nearest -= (levels - v_train[nearest - 1]) < (v_train[nearest] - levels)
-    snapped = v_train[nearest] + nudge
-    if np.all(np.diff(snapped) > 0) and train_error(snapped) < train_error(levels):
-        levels = snapped
+    snapped = snap_to_training(v_fine, train, block, levels)
+    start_error = train_error(levels)
+    if np.all(np.diff(snapped) > 0):
+        snapped_error = train_error(snapped)
+        if snapped_error < start_error:
+            levels, start_error = snapped, snapped_error
+    if rss_bar is not None and start_error >= rss_bar:
+        return None
     for _ in range(PLACEMENT_SWEEPS):
         cols = sharp_columns(v_fine, levels, block)
         base, w = solve(cols)
@@ -287,4 +397,82 @@ def place_levels(v_fine, block: int, x, train, levels, spacing: float, solve) ->
             w[touched] = best_weights
             cols[:, touched] = trial_columns(levels[level])
             prediction = rest + cols[:, touched] @ w[touched]
+    return levels
+
+
+def place_at_jumps(v, x, train, levels, spacing: float) -> np.ndarray:
+    """Thresholds (V) of a fine grid placed where the record jumps: each, in turn from the bottom,
+    just above the training voltage (within a quarter ``spacing`` of it, above the level placed
+    below) that splits the training increments near it best — per direction, the displacement
+    increment fitted as a local slope times the voltage increment plus a jump on the increments
+    whose voltage span holds the threshold (least squares; the two directions' residuals summed;
+    increments shorter than half a spacing that overlap the window). No relay weights are
+    fitted: with more than :data:`FREE_LEVELS` levels the training-error placement
+    (:func:`place_levels`) would refit hundreds of relays per level."""
+    v, x, train = np.asarray(v, float), np.asarray(x, float), np.asarray(train, bool)
+    k = np.flatnonzero(train[:-1] & train[1:])
+    dv, dx = v[k + 1] - v[k], x[k + 1] - x[k]
+    keep = (dv != 0) & (np.abs(dv) < 0.5 * spacing)
+    k, dv, dx = k[keep], dv[keep], dx[keep]
+    lo, hi, rising = np.minimum(v[k], v[k + 1]), np.maximum(v[k], v[k + 1]), dv > 0
+    v_train = np.unique(v[train])
+    nudge = threshold_nudge(v)
+    placed = np.array(levels, dtype=np.float64)
+    for level in range(placed.size):
+        low = max(placed[level - 1] if level else -np.inf, levels[level] - 0.25 * spacing)
+        high = levels[level] + 0.25 * spacing
+        candidates = v_train[(v_train >= low) & (v_train < high)]
+        near = (hi >= low) & (lo < high)
+        if candidates.size == 0 or near.sum() < 4:
+            continue
+        misfit = np.zeros(candidates.size)
+        for direction in (True, False):
+            m = near & (rising == direction)
+            if m.sum() < 2:
+                continue
+            a, y = np.abs(dv[m]), dx[m]
+            b = ((lo[m][:, None] <= candidates[None, :]) & (candidates[None, :] < hi[m][:, None])).astype(float)
+            aa, ay, yy = a @ a, a @ y, y @ y
+            bb, ab, by = b.sum(axis=0), a @ b, y @ b
+            det = aa * bb - ab**2
+            with np.errstate(divide="ignore", invalid="ignore"):
+                two = yy - (bb * ay**2 - 2.0 * ab * ay * by + aa * by**2) / det
+            misfit += np.where(det > 1e-12 * aa * np.maximum(bb, 1.0), two, yy - ay**2 / aa)
+        placed[level] = candidates[int(np.argmin(misfit))] + nudge
+    return placed
+
+
+def refine_fine_levels(v_fine, block: int, x, train, levels, spacing: float, solve) -> np.ndarray:
+    """One sweep of a fine grid's thresholds (V) by the training error, the relay weights held: each
+    level in turn moves to just above the training voltage among the :data:`FINE_CANDIDATES`
+    nearest to it (within a quarter ``spacing``, between its neighbours) that fits the training part
+    best. ``solve(levels)`` returns ``(prediction, per-relay weights)`` of the fit on ``levels``
+    (the density's node weights spread to the relays, :func:`density_map`); only the relays of the
+    level moved are simulated again, never the whole grid's states."""
+    levels = np.array(levels, dtype=np.float64)
+    v_fine, x, train = np.asarray(v_fine, dtype=np.float64), np.asarray(x, float), np.asarray(train, bool)
+    i_all, j_all = relay_pairs(levels.size)
+    v_train = training_voltages(v_fine, train, block)
+    nudge = threshold_nudge(v_fine)
+    prediction, w = solve(levels)
+    for level in range(levels.size):
+        touched = np.flatnonzero((i_all == level) | (j_all == level))
+        pairs = (i_all[touched], j_all[touched])
+        current = sharp_columns(v_fine, levels, block, pairs) @ w[touched]
+        rest = (prediction - current)[train]
+        below = levels[level - 1] if level else -np.inf
+        above = levels[level + 1] if level + 1 < levels.size else np.inf
+        low, high = max(below, levels[level] - 0.25 * spacing), min(above, levels[level] + 0.25 * spacing)
+        voltages = v_train[(v_train > low) & (v_train < high)]
+        voltages = voltages[np.argsort(np.abs(voltages - levels[level]), kind="stable")[:FINE_CANDIDATES]] + nudge
+        best, best_error = levels[level], float(np.sum((rest + current[train] - x[train]) ** 2))
+        for candidate in voltages:
+            trial = levels.copy()
+            trial[level] = candidate
+            error = float(np.sum((rest + (sharp_columns(v_fine, trial, block, pairs) @ w[touched])[train] - x[train]) ** 2))
+            if error < best_error:
+                best, best_error = candidate, error
+        if best != levels[level]:
+            levels[level] = best
+            prediction = prediction - current + sharp_columns(v_fine, levels, block, pairs) @ w[touched]
     return levels
