@@ -3,7 +3,8 @@
     PYTHONPATH=. nice -n 10 python benchmarks/bench_other_families.py [--seed 901] [--records 4] [--workers 2]
 
 For each family of :data:`afmsim.diagnosis.loops.null_plants.OTHER_FAMILIES` (Coleman–Hodgdon,
-Dahl, Jiles–Atherton, Maxwell slip, a discrete Preisach grid of ideal relays), ``--records`` null
+Dahl, Jiles–Atherton, Maxwell slip, discrete Preisach grids of ideal relays of 10–40 and of 50–128
+levels), ``--records`` null
 records — no added effect — under the open-world suite's drives (:func:`afmsim.diagnosis.loops.open_world.record_drive`, its three timings
 drawn), white sensor noise of 5–15 nm, no cross axis; each diagnosed in full as a user's record
 would be. Writes ``benchmarks/results/other_families.json`` (the machine, the git revision, every

@@ -389,9 +389,12 @@ def refine_mode(train_error, mode: tuple[float, float], dt: float) -> tuple[tupl
 
     start = np.log(mode)
     simplex = np.array([start, start + [np.log1p(mode[1]), 0.0], start + [0.0, np.log(0.6)]])
-    best = minimize(error, start, method="Nelder-Mead",
-                    options={"initial_simplex": simplex, "xatol": RESONANCE_LOG_XATOL, "fatol": 0.0,
-                             "maxfev": RESONANCE_MAX_EVALUATIONS})
+    # outside the band the error is inf, and Nelder–Mead's convergence test then subtracts inf from
+    # inf: a NaN it handles, and a warning a user should not see
+    with np.errstate(invalid="ignore"):
+        best = minimize(error, start, method="Nelder-Mead",
+                        options={"initial_simplex": simplex, "xatol": RESONANCE_LOG_XATOL, "fatol": 0.0,
+                                 "maxfev": RESONANCE_MAX_EVALUATIONS})
     f0, zeta = np.exp(best.x)
     return (float(f0), float(zeta)), float(best.fun)
 
