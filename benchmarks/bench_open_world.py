@@ -1,6 +1,6 @@
 """Open-world validation of the loop diagnosis on fresh seeds (issue 11, point 5).
 
-    PYTHONPATH=. nice -n 10 python benchmarks/bench_open_world.py [--seeds 54001,54002,54003] [--workers 2]
+    PYTHONPATH=. nice -n 10 python benchmarks/bench_open_world.py [--seeds 55001,55002,55003] [--workers 2]
 
 Runs :func:`afmsim.diagnosis.loops.open_world.validate_open_world` (34 cases per seed, spread over
 the worker processes) and writes ``benchmarks/results/open_world.json``: the machine, the git
@@ -8,7 +8,7 @@ revision (the diagnosis that was scored), the headline,
 the pooled and per-seed scores and every case; prints the headline and the Markdown tables of
 docs/diagnosis.md ("Open-world validation"). Seeds 1–6 were the development seeds; the published
 figures come from fresh seeds run once after the method was frozen (7001–7003, then 8001–8003, 9001–9003,
-then 10001–10003, 11001–11003, 12001–12003, 13001–13003, 14001–14003, 15001–15003, 16001–16003, 17001–17003, 18001–18003, 19001–19003, 20001–20003, 21001–21003, 22001–22003, 23001–23003, 24001–24003, 25001–25003, 26001–26003, 27001–27003, 28001–28003, 29001–29003, 30001–30003, 31001–31003, 32001–32003, 33001–33003, 34001–34003, 35001–35003, 36001–36003, 37001–37003, 38001–38003, 39001–39003, 40001–40003, 41001–41003, 42001–42003, 43001–43003, 44001–44003, 45001–45003, 46001–46003, 47001–47003, 48001–48003, 49001–49003, 50001–50003, 51001–51003, 52001–52003, 53001–53003, 54001–54003: see FRESH_SEEDS in open_world.py).
+then 10001–10003, 11001–11003, 12001–12003, 13001–13003, 14001–14003, 15001–15003, 16001–16003, 17001–17003, 18001–18003, 19001–19003, 20001–20003, 21001–21003, 22001–22003, 23001–23003, 24001–24003, 25001–25003, 26001–26003, 27001–27003, 28001–28003, 29001–29003, 30001–30003, 31001–31003, 32001–32003, 33001–33003, 34001–34003, 35001–35003, 36001–36003, 37001–37003, 38001–38003, 39001–39003, 40001–40003, 41001–41003, 42001–42003, 43001–43003, 44001–44003, 45001–45003, 46001–46003, 47001–47003, 48001–48003, 49001–49003, 50001–50003, 51001–51003, 52001–52003, 53001–53003, 54001–54003, 55001–55003: see FRESH_SEEDS in open_world.py).
 """
 
 from __future__ import annotations

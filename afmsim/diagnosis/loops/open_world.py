@@ -165,8 +165,11 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: Coleman–Hodgdon stages outside the suite, development seeds 901–902 of bench_other_families,
 #: measured on the spent records of 47001–47003); 54001–54003 first for the sharp-relay family of
 #: discrete Preisach stages (:mod:`.sharp_grid`; prompted by sharp-relay stages outside the suite,
-#: development seeds 901, 902 and 905, measured on the spent records of 47001–47003: no verdict changed).
-FRESH_SEEDS = (54001, 54002, 54003)
+#: development seeds 901, 902 and 905, measured on the spent records of 47001–47003: no verdict changed);
+#: 55001–55003 first for its fine grids of up to 128 levels and the bar its start must pass
+#: (prompted by probe seeds 906–907, measured on the 27 spent records of 47001–47003 and
+#: 53001–53003 whose comb stood out: no verdict changed).
+FRESH_SEEDS = (55001, 55002, 55003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
