@@ -2,8 +2,8 @@
 (issue 11, point 3).
 
 The textbook discrete Preisach model switches ideal relays at the nodes of a regular grid of the
-voltage range. With a coarse grid (10–40 levels) every crossing of a grid voltage moves the stage
-by (loop part)/N — micrometres, a staircase — and the relay grid of :mod:`.model`, whose relays ramp
+voltage range. With a coarse grid (10–128 levels) every crossing of a grid voltage moves the stage
+by (loop part)/N — 0.1–3 µm, a staircase — and the relay grid of :mod:`.model`, whose relays ramp
 across their cells at the record's own levels, ramps where such a stage jumps: 3–74× the noise on
 null records of such stages (docs/diagnosis.md, "Sharp relays on the record's own grid"). This
 family finds the stage's grid and places sharp relays on it, from the training part only:
@@ -21,7 +21,9 @@ family finds the stage's grid and places sharp relays on it, from the training p
    threshold moves to just above the training voltage (within a quarter spacing, between its
    neighbours) that minimises the training error — a drive written by a converter sits on the same
    voltages again and again, and which side of a threshold a sample lies on is what counts;
-   :data:`PLACEMENT_SWEEPS` sweeps, the weights refitted after each;
+   :data:`PLACEMENT_SWEEPS` sweeps, the weights refitted after each; on grids finer than
+   :data:`FREE_LEVELS` the density is bilinear on a coarse grid (:func:`density_map`) and the
+   thresholds are placed without per-relay refits (:func:`place_at_jumps`, :func:`refine_fine_levels`);
 3. :func:`sharp_columns` — relay (i, j ≤ i) on at or above level i, off below level j (ideal
    relays, from rest below the first sample), at the full rate and block-averaged as the record;
 4. :func:`undetermined_samples` — a threshold anywhere between the training voltages just below and
@@ -45,8 +47,10 @@ __all__ = ["find_grid", "grid_levels", "place_levels", "place_at_jumps", "sharp_
 #: Harmonics of the grid spacing summed in the periodogram of :func:`find_grid`.
 HARMONICS = 3
 #: The comb's peak over the periodogram's median at which the family is offered. On sharp-relay
-#: grid stages (development seed 905) the peak stood 7–48× above it where the drive moves in small
-#: increments (sines, noise) and 1.3× under steps; see docs/diagnosis.md for the suite's records.
+#: grid stages (development seeds 901–907) the peak stood 5.7–70× above it where the drive moves in
+#: small increments (sines, triangles, noise) and 1.3× under steps; on smooth stages of the spent
+#: suite records up to 9.5× (fine spacings: kinks, leakage), where the family's start must then
+#: beat the other families (:attr:`.model.Design.sharp_grid`).
 MIN_COMB_RATIO = 5.0
 #: A line at 1/(k·s) this strong against the one at 1/s makes the grid's spacing k·s (:func:`find_grid`).
 SUBHARMONIC_SHARE = 0.5
@@ -55,9 +59,11 @@ SUBHARMONIC_SHARE = 0.5
 #: most was 48 (development seed 906).
 MIN_LEVELS, MAX_LEVELS = 6, 128
 #: Up to this many levels each relay has its own weight (the relay count grows with the square: 48
-#: levels are 1,176 relays, twice the 32-level grid's); on a finer grid the relays' density is
-#: bilinear on a coarse grid of :data:`DENSITY_LEVELS` levels (:func:`density_map`), and the
-#: thresholds are placed at the jumps (:func:`place_at_jumps`) instead of by the training error.
+#: levels are 1,176 relays, twice the 32-level grid's) and each threshold is placed with its relays'
+#: weights refitted (:func:`place_levels`); on a finer grid the relays' density is bilinear on a
+#: coarse grid of :data:`DENSITY_LEVELS` levels (:func:`density_map`), and the thresholds start from
+#: the best of the grid as found, snapped and placed at the jumps (:func:`place_at_jumps`), then
+#: move with the weights held (:func:`refine_fine_levels`; :attr:`.model.Design.sharp_grid`).
 FREE_LEVELS = 48
 DENSITY_LEVELS = 24
 #: Training voltages nearest to each fine-grid threshold tried by :func:`refine_fine_levels`, and its sweeps.
@@ -127,25 +133,6 @@ def _states_differ(v, up_a, down_a, up_b, down_b, block):  # pragma: no cover - 
     return out
 
 
-@njit(cache=True, nogil=True)
-def _sharp_relays(v, up, down, block):  # pragma: no cover - compiled
-    m = v.size // block
-    out = np.zeros((m, up.size))
-    state = np.zeros(up.size)
-    for r in range(up.size):
-        state[r] = 1.0 if v[0] >= up[r] else 0.0
-    w = 1.0 / block
-    for t in range(m * block):
-        row = out[t // block]
-        for r in range(up.size):
-            if v[t] >= up[r]:
-                state[r] = 1.0
-            elif v[t] < down[r]:
-                state[r] = 0.0
-            row[r] += w * state[r]
-    return out
-
-
 def relay_pairs(n_levels: int) -> tuple[np.ndarray, np.ndarray]:
     """Level indices (i, j ≤ i) of the relays, in the order of :func:`.model.relay_curvature`."""
     i, j = np.tril_indices(n_levels)
@@ -159,7 +146,9 @@ def sharp_columns(v_fine, levels, block: int = 1, pairs=None) -> np.ndarray:
     ``block`` samples. ``pairs``: a subset of :func:`relay_pairs` (default: all)."""
     i, j = relay_pairs(len(levels)) if pairs is None else pairs
     levels = np.asarray(levels, dtype=np.float64)
-    return _sharp_relays(np.ascontiguousarray(v_fine, dtype=np.float64), levels[i], levels[j], int(block))
+    own = np.arange(i.size, dtype=np.int64)[:, None]  # each relay its own column
+    return _mapped_relays(np.ascontiguousarray(v_fine, dtype=np.float64), levels[i], levels[j], own,
+                          np.ones((i.size, 1)), i.size, int(block))
 
 
 def density_map(n_levels: int, n_density: int = DENSITY_LEVELS) -> tuple[np.ndarray, np.ndarray]:
@@ -173,7 +162,11 @@ def density_map(n_levels: int, n_density: int = DENSITY_LEVELS) -> tuple[np.ndar
     i0 = np.minimum(np.floor(fi).astype(int), n_density - 2)
     j0 = np.minimum(np.floor(fj).astype(int), n_density - 2)
     di, dj = fi - i0, fj - j0
-    node = lambda a, b: (lambda a, b: a * (a + 1) // 2 + b)(a, np.minimum(b, a))  # noqa: E731
+
+    def node(a, b):
+        """Index of density node (a, min(b, a)) in the order of :func:`relay_pairs`."""
+        return a * (a + 1) // 2 + np.minimum(b, a)
+
     columns = np.column_stack([node(i0, j0), node(i0 + 1, j0), node(i0, j0 + 1), node(i0 + 1, j0 + 1)])
     weights = np.column_stack([(1 - di) * (1 - dj), di * (1 - dj), (1 - di) * dj, di * dj])
     return columns.astype(np.int64), weights
