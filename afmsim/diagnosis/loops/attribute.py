@@ -301,7 +301,9 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                      "relay_smoothing": d.smoothing if front.kind == "preisach" else None,
                      "bouc_wen_shape": d.bouc_wen_shape.as_dict() if front.kind == "bouc_wen" else None,
                      "sharp_grid": None if front.kind != "sharp" else
-                     {**{k: v for k, v in d.sharp_grid.items() if k != "levels"}, "levels_V": d.sharp_grid["levels"].tolist()},
+                     {**{k: v for k, v in d.sharp_grid.items() if k not in ("levels", "tied")},
+                      "levels_V": d.sharp_grid["levels"].tolist(),
+                      "tied_low_V": d.sharp_grid["tied"][0].tolist(), "tied_high_V": d.sharp_grid["tied"][1].tolist()},
                      "model_choice_scores": {str(k): v for k, v in d.choice_scores.items()},
                      "heldout_scoring": scoring, "drive_polarity": int(d.polarity),
                      "prior_spread_to_noise": None if spread_to_noise is None else round(spread_to_noise, 3),

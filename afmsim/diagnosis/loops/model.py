@@ -91,8 +91,8 @@ from .bouc_wen import backbone_columns, bouc_wen_columns, fit_bouc_wen_shape
 from .nnls import nnls_gram
 from .record import block_means
 from .sharp_grid import (DENSITY_LEVELS, FINE_SWEEPS, FREE_LEVELS, density_map, density_size, find_grid, grid_levels,
-                         place_at_jumps, place_levels, refine_fine_levels, relay_columns, snap_to_training,
-                         undetermined_samples)
+                         place_at_jumps, place_levels, refine_fine_levels, relay_columns, sharp_columns,
+                         snap_to_training, TIE_VARIANCES, tied_thresholds, undetermined_samples)
 
 __all__ = ["relay_features", "play_features", "fine_play_features", "drive_polarity", "solve_weights", "untrained_state", "in_trained_states", "ModelSpec", "FittedModel", "fit_model", "lag_filter", "dynamics_lag_filter", "lag_delay",
            "creep_gamma_from_bank", "dynamics_filters", "resonance_filter", "resonance_band", "estimate_resonance", "CANDIDATES"]
@@ -712,7 +712,7 @@ class Design:
         over_record = in_trained_states(self.relays_over_record(), self.train)
         if self.family == "sharp":
             levels = self.sharp_grid["levels"]
-            held &= ~undetermined_samples(self.vc, levels, self.train, self.block)
+            held &= ~undetermined_samples(self.vc, levels, self.train, self.block, tied=self.sharp_grid["tied"])
             over_record &= in_trained_states(relay_columns(self.vc, levels, self.block), self.train)
         before = held & ~after_excursion(self.v, self.train, v_min=self.v_min, v_max=self.v_max)
         trained = before & self.within_range & over_record
@@ -929,7 +929,8 @@ class Design:
                 if trial_error >= error:
                     break
                 levels, error = trial, trial_error
-            return {"levels": levels, "spacing": spacing, "phase": phase, "comb_ratio": ratio}
+            prediction, weights = solve_density(levels)
+            return self._with_ties(levels, spacing, phase, ratio, prediction, weights)
         curvature = relay_curvature(levels.size)
 
         def solve(cols):
@@ -940,7 +941,17 @@ class Design:
         levels = place_levels(self.vc, self.block, self.x, self.train, levels, spacing, solve, rss_bar=bar)
         if levels is None:
             return None
-        return {"levels": levels, "spacing": spacing, "phase": phase, "comb_ratio": ratio}
+        cols = sharp_columns(self.vc, levels, self.block)
+        base, weights = solve(cols)
+        return self._with_ties(levels, spacing, phase, ratio, base + cols @ weights, weights)
+
+    def _with_ties(self, levels, spacing, phase, ratio, prediction, weights) -> dict:
+        """:attr:`sharp_grid`'s dict, with the places each threshold could take as well
+        (:func:`.sharp_grid.tied_thresholds`, within :data:`.sharp_grid.TIE_VARIANCES` of the fit's
+        residual variance): ``"tied"`` = (lowest, highest) per level (V)."""
+        tolerance = TIE_VARIANCES * float(np.mean((prediction - self.x)[self.train] ** 2))
+        tied = tied_thresholds(self.vc, self.block, self.x, self.train, levels, spacing, prediction, weights, tolerance)
+        return {"levels": levels, "spacing": spacing, "phase": phase, "comb_ratio": ratio, "tied": tied}
 
     @cached_property
     def nuisance(self) -> np.ndarray:

@@ -41,7 +41,7 @@ from scipy.linalg import solve_triangular
 from scipy.optimize import nnls
 
 __all__ = ["find_grid", "grid_levels", "place_levels", "place_at_jumps", "sharp_columns", "relay_columns",
-           "density_map", "density_size", "relay_pairs", "undetermined_samples", "MIN_COMB_RATIO", "MAX_LEVELS",
+           "density_map", "density_size", "relay_pairs", "undetermined_samples", "tied_thresholds", "MIN_COMB_RATIO", "MAX_LEVELS",
            "FREE_LEVELS"]
 
 #: Harmonics of the grid spacing summed in the periodogram of :func:`find_grid`.
@@ -66,6 +66,11 @@ MIN_LEVELS, MAX_LEVELS = 6, 128
 #: move with the weights held (:func:`refine_fine_levels`; :attr:`.model.Design.sharp_grid`).
 FREE_LEVELS = 48
 DENSITY_LEVELS = 24
+#: Training RSS within which another place of a threshold fits as well (:func:`tied_thresholds`), in
+#: the fit's own residual variances (about the 95 % point of a χ² with one degree of freedom), and
+#: the most training voltages it steps each way.
+TIE_VARIANCES = 4.0
+TIE_STEPS = 20
 #: Training voltages nearest to each fine-grid threshold tried by :func:`refine_fine_levels`, and its sweeps.
 FINE_CANDIDATES = 40
 FINE_SWEEPS = 2
@@ -212,7 +217,7 @@ def threshold_nudge(v_fine) -> float:
     return 1e-9 * (float(np.ptp(v_fine)) or 1.0)
 
 
-def undetermined_samples(v_fine, levels, train, block: int = 1) -> np.ndarray:
+def undetermined_samples(v_fine, levels, train, block: int = 1, tied=None) -> np.ndarray:
     """Samples (of the block-mean record) whose relay states the training part does not determine.
 
     Each threshold may lie anywhere from just above the training voltage below it to the training
@@ -220,13 +225,17 @@ def undetermined_samples(v_fine, levels, train, block: int = 1) -> np.ndarray:
     their thresholds, so every placement's states lie between those of the two extreme placements
     (all thresholds at the low ends, all at the high ends). A sample where these differ depends on
     where in its interval a threshold lies — a held-out voltage between two training voltages, and
-    the relay it switched, until its other threshold resets it."""
+    the relay it switched, until its other threshold resets it. ``tied``: ``(lowest, highest)``
+    thresholds (V, per level) that fit the training part as well within its noise
+    (:func:`tied_thresholds`); the intervals then run from the lowest's to the highest's."""
     v_fine = np.asarray(v_fine, dtype=np.float64)
     levels = np.asarray(levels, dtype=np.float64)
+    lowest, highest = (levels, levels) if tied is None else (np.asarray(tied[0], float), np.asarray(tied[1], float))
     v_train = training_voltages(v_fine, train, block)
-    below = np.searchsorted(v_train, levels, side="left")  # first training voltage ≥ the level
+    below = np.searchsorted(v_train, lowest, side="left")  # first training voltage ≥ the lowest
+    above = np.searchsorted(v_train, highest, side="left")  # first training voltage ≥ the highest
     low = np.where(below > 0, v_train[np.maximum(below - 1, 0)] + threshold_nudge(v_fine), -np.inf)
-    high = np.where(below < v_train.size, v_train[np.minimum(below, v_train.size - 1)], np.inf)
+    high = np.where(above < v_train.size, v_train[np.minimum(above, v_train.size - 1)], np.inf)
     low, high = np.minimum(low, levels), np.maximum(high, levels)
     low, high = np.where(np.isfinite(low), low, levels), np.where(np.isfinite(high), high, levels)
     i, j = relay_pairs(levels.size)
@@ -469,3 +478,50 @@ def refine_fine_levels(v_fine, block: int, x, train, levels, spacing: float, sol
             levels[level] = best
             prediction = prediction - current + sharp_columns(v_fine, levels, block, pairs) @ w[touched]
     return levels
+
+
+def tied_thresholds(v_fine, block: int, x, train, levels, spacing: float, prediction, weights,
+                    tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(lowest, highest)`` thresholds (V, per level) whose training error, the relay weights held
+    (per relay, ``weights``; ``prediction`` the fit's, m), lies within ``tolerance`` (m², a training
+    residual sum of squares) of the placed level's: from each level outward, one training voltage
+    at a time (within a quarter ``spacing``, between its neighbours, at most :data:`TIE_STEPS` each
+    way), until one fits worse. Moving a threshold past a training voltage the training part visits
+    only in states that the move does not change costs nothing, and one it visits rarely costs less
+    than the noise: the training part does not tell such places apart, and a held-out voltage
+    between them switches relays (or not) wherever the threshold lies there — on development record
+    904/sharp_preisach/1 two places 2.2 mV apart fitted within 0.4 σ² of each other, and the one the
+    placement took left the held-out part at 3.7× the noise (the other 1.1×)."""
+    levels = np.asarray(levels, dtype=np.float64)
+    v_fine, x, train = np.asarray(v_fine, dtype=np.float64), np.asarray(x, float), np.asarray(train, bool)
+    i_all, j_all = relay_pairs(levels.size)
+    v_train = training_voltages(v_fine, train, block)
+    nudge = threshold_nudge(v_fine)
+    lowest, highest = levels.copy(), levels.copy()
+    for level in range(levels.size):
+        touched = np.flatnonzero((i_all == level) | (j_all == level))
+        pairs = (i_all[touched], j_all[touched])
+        current = sharp_columns(v_fine, levels, block, pairs) @ weights[touched]
+        rest = (prediction - current)[train]
+        placed_error = float(np.sum((rest + current[train] - x[train]) ** 2))
+        below = levels[level - 1] if level else -np.inf
+        above = levels[level + 1] if level + 1 < levels.size else np.inf
+        low, high = max(below, levels[level] - 0.25 * spacing), min(above, levels[level] + 0.25 * spacing)
+
+        def fits_as_well(candidate):
+            trial = levels.copy()
+            trial[level] = candidate
+            part = (sharp_columns(v_fine, trial, block, pairs) @ weights[touched])[train]
+            return float(np.sum((rest + part - x[train]) ** 2)) <= placed_error + tolerance
+
+        down = v_train[(v_train > low) & (v_train < levels[level] - nudge / 2)][::-1][:TIE_STEPS]
+        up = v_train[(v_train >= levels[level]) & (v_train < high)][:TIE_STEPS]
+        for voltage in down:
+            if not fits_as_well(voltage + nudge):
+                break
+            lowest[level] = voltage + nudge
+        for voltage in up:
+            if not fits_as_well(voltage + nudge):
+                break
+            highest[level] = voltage + nudge
+    return lowest, highest
