@@ -305,6 +305,28 @@ def grid_levels(spacing: float, phase: float, v_lo: float, v_hi: float) -> np.nd
     return levels[levels <= v_hi]
 
 
+class _LevelMove:
+    """One threshold of ``levels`` moved with the others fixed: the relays that touch it (``touched``,
+    ``pairs``), the window it may move in (``low``, ``high``: within a quarter ``spacing`` of it and
+    between its neighbours, V) and its relays' columns with it at a candidate place."""
+
+    def __init__(self, v_fine, block: int, levels, level: int, spacing: float):
+        i_all, j_all = relay_pairs(levels.size)
+        self.touched = np.flatnonzero((i_all == level) | (j_all == level))
+        self.pairs = (i_all[self.touched], j_all[self.touched])
+        below = levels[level - 1] if level > 0 else -np.inf
+        above = levels[level + 1] if level + 1 < levels.size else np.inf
+        self.low = max(below, levels[level] - 0.25 * spacing)
+        self.high = min(above, levels[level] + 0.25 * spacing)
+        self.v_fine, self.block, self.levels, self.level = v_fine, block, levels, level
+
+    def columns(self, candidate) -> np.ndarray:
+        """The touched relays' columns with the threshold at ``candidate`` (V)."""
+        trial = self.levels.copy()
+        trial[self.level] = candidate
+        return sharp_columns(self.v_fine, trial, self.block, self.pairs)
+
+
 def place_levels(v_fine, block: int, x, train, levels, spacing: float, solve, rss_bar: float | None = None):
     """Thresholds (V) placed one by one (:data:`PLACEMENT_SWEEPS` sweeps, the weights refitted by
     ``solve`` after each): each moves to just above the training voltage within a quarter
@@ -327,7 +349,6 @@ def place_levels(v_fine, block: int, x, train, levels, spacing: float, solve, rs
     levels = np.array(levels, dtype=np.float64)
     v_fine = np.asarray(v_fine, dtype=np.float64)
     x = np.asarray(x, dtype=np.float64)
-    i_all, j_all = relay_pairs(levels.size)
     train = np.asarray(train, bool)
     v_train = training_voltages(v_fine, train, block)
     nudge = threshold_nudge(v_fine)
@@ -353,19 +374,11 @@ def place_levels(v_fine, block: int, x, train, levels, spacing: float, solve, rs
         base, w = solve(cols)
         prediction = base + cols @ w
         for level in range(levels.size):
-            touched = np.flatnonzero((i_all == level) | (j_all == level))
-            pairs = (i_all[touched], j_all[touched])
+            move = _LevelMove(v_fine, block, levels, level, spacing)
+            touched, trial_columns = move.touched, move.columns
             rest = prediction - cols[:, touched] @ w[touched]
-            below = levels[level - 1] if level > 0 else -np.inf
-            above = levels[level + 1] if level + 1 < levels.size else np.inf
-            low, high = max(below, levels[level] - 0.25 * spacing), min(above, levels[level] + 0.25 * spacing)
-            voltages = v_train[(v_train > low) & (v_train < high)] + nudge
+            voltages = v_train[(v_train > move.low) & (v_train < move.high)] + nudge
             target = (x - rest)[train]
-
-            def trial_columns(candidate):
-                trial = levels.copy()
-                trial[level] = candidate
-                return sharp_columns(v_fine, trial, block, pairs)
 
             def held_error(candidate):
                 return float(np.sum((trial_columns(candidate)[train] @ w[touched] - target) ** 2))
@@ -453,30 +466,24 @@ def refine_fine_levels(v_fine, block: int, x, train, levels, spacing: float, sol
     level moved are simulated again, never the whole grid's states."""
     levels = np.array(levels, dtype=np.float64)
     v_fine, x, train = np.asarray(v_fine, dtype=np.float64), np.asarray(x, float), np.asarray(train, bool)
-    i_all, j_all = relay_pairs(levels.size)
     v_train = training_voltages(v_fine, train, block)
     nudge = threshold_nudge(v_fine)
     prediction, w = solve(levels)
     for level in range(levels.size):
-        touched = np.flatnonzero((i_all == level) | (j_all == level))
-        pairs = (i_all[touched], j_all[touched])
-        current = sharp_columns(v_fine, levels, block, pairs) @ w[touched]
+        move = _LevelMove(v_fine, block, levels, level, spacing)
+        touched = move.touched
+        current = move.columns(levels[level]) @ w[touched]
         rest = (prediction - current)[train]
-        below = levels[level - 1] if level else -np.inf
-        above = levels[level + 1] if level + 1 < levels.size else np.inf
-        low, high = max(below, levels[level] - 0.25 * spacing), min(above, levels[level] + 0.25 * spacing)
-        voltages = v_train[(v_train > low) & (v_train < high)]
+        voltages = v_train[(v_train > move.low) & (v_train < move.high)]
         voltages = voltages[np.argsort(np.abs(voltages - levels[level]), kind="stable")[:FINE_CANDIDATES]] + nudge
         best, best_error = levels[level], float(np.sum((rest + current[train] - x[train]) ** 2))
         for candidate in voltages:
-            trial = levels.copy()
-            trial[level] = candidate
-            error = float(np.sum((rest + (sharp_columns(v_fine, trial, block, pairs) @ w[touched])[train] - x[train]) ** 2))
+            error = float(np.sum((rest + (move.columns(candidate) @ w[touched])[train] - x[train]) ** 2))
             if error < best_error:
                 best, best_error = candidate, error
         if best != levels[level]:
             levels[level] = best
-            prediction = prediction - current + sharp_columns(v_fine, levels, block, pairs) @ w[touched]
+            prediction = prediction - current + move.columns(best) @ w[touched]
     return levels
 
 
@@ -494,28 +501,22 @@ def tied_thresholds(v_fine, block: int, x, train, levels, spacing: float, predic
     placement took left the held-out part at 3.7× the noise (the other 1.1×)."""
     levels = np.asarray(levels, dtype=np.float64)
     v_fine, x, train = np.asarray(v_fine, dtype=np.float64), np.asarray(x, float), np.asarray(train, bool)
-    i_all, j_all = relay_pairs(levels.size)
     v_train = training_voltages(v_fine, train, block)
     nudge = threshold_nudge(v_fine)
     lowest, highest = levels.copy(), levels.copy()
     for level in range(levels.size):
-        touched = np.flatnonzero((i_all == level) | (j_all == level))
-        pairs = (i_all[touched], j_all[touched])
-        current = sharp_columns(v_fine, levels, block, pairs) @ weights[touched]
+        move = _LevelMove(v_fine, block, levels, level, spacing)
+        own = weights[move.touched]
+        current = move.columns(levels[level]) @ own
         rest = (prediction - current)[train]
         placed_error = float(np.sum((rest + current[train] - x[train]) ** 2))
-        below = levels[level - 1] if level else -np.inf
-        above = levels[level + 1] if level + 1 < levels.size else np.inf
-        low, high = max(below, levels[level] - 0.25 * spacing), min(above, levels[level] + 0.25 * spacing)
 
         def fits_as_well(candidate):
-            trial = levels.copy()
-            trial[level] = candidate
-            part = (sharp_columns(v_fine, trial, block, pairs) @ weights[touched])[train]
+            part = (move.columns(candidate) @ own)[train]
             return float(np.sum((rest + part - x[train]) ** 2)) <= placed_error + tolerance
 
-        down = v_train[(v_train > low) & (v_train < levels[level] - nudge / 2)][::-1][:TIE_STEPS]
-        up = v_train[(v_train >= levels[level]) & (v_train < high)][:TIE_STEPS]
+        down = v_train[(v_train > move.low) & (v_train < levels[level] - nudge / 2)][::-1][:TIE_STEPS]
+        up = v_train[(v_train >= levels[level]) & (v_train < move.high)][:TIE_STEPS]
         for voltage in down:
             if not fits_as_well(voltage + nudge):
                 break
