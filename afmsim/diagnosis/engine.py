@@ -328,7 +328,8 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
                      "significant": False, "added_to": added_to, "test": _round(test)}
             if round_no == 0:
                 entry["heldout_shrink_alone"] = entry["heldout_shrink"]
-            evaluations[c] = {**{k: v for k, v in evaluations.get(c, {}).items() if k != "alike_outside"}, **entry}
+            evaluations[c] = {**{k: v for k, v in evaluations.get(c, {}).items()
+                                 if k not in ("alike_outside", "alike_params")}, **entry}
         if rms(cur_r) <= HONEST_FACTOR * sigma:
             for c, (_, _, test) in trial.items():
                 if test["significant"] and test["step_shrink"] < rules.min_step_near_noise:
@@ -336,7 +337,8 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
                     evaluations[c]["gap_within_noise"] = True
         for c, (fit, _, test) in trial.items():
             if test["significant"] and (alike := front.alike_outside(fit, c)) is not None:
-                evaluations[c]["alike_outside"] = alike
+                # the parameters of the term judged alike (``params`` end up those of the final joint fit)
+                evaluations[c].update(alike_outside=alike, alike_params=front.effect_params(fit, c))
         passed = [c for c in trial if trial[c][2]["significant"]]
         if not passed:
             lookahead = rules.pair_lookahead and rms(cur_r) > HONEST_FACTOR * sigma \
@@ -352,7 +354,7 @@ def attribute(front: Front, candidates, sigma: float, *, modelled=(), rules: Rul
                                       heldout_shrink=round(1.0 - rms(cur_r) / rms_base, 4) if rms_base > 0 else 0.0,
                                       pair_test=_round(tests["pair"]), needed_given_other=_round(tests[c]))
                 if alike is not None:
-                    evaluations[c]["alike_outside"] = alike
+                    evaluations[c].update(alike_outside=alike, alike_params=front.effect_params(cur_fit, c))
                     withheld = withheld + (c,)
             continue
         top = min(trial[c][2]["delta_bic"] for c in passed)
