@@ -22,8 +22,9 @@ Protocol of :func:`diagnose_loops`:
    second differences of the baseline's training residual where the drive moves least,
    :meth:`~afmsim.diagnosis.loops.model.Design.noise_floor`), that also pays for its parameters on
    the training part (:func:`~afmsim.diagnosis.engine.training_delta_bic` < 0), is added, repeated
-   while one is significant (at most 3 effects); a dynamics term fitted as a lag alone (no
-   resonance) is not named — a loop width that grows with the drive rate does the same — nor is a
+   while one is significant (at most 3 effects); a dynamics term that shows no ringing (a lag
+   alone, or with a mode seen by its inertia only) is not named where a loop width that grows with
+   the drive rate fits as well — nor is a
    drift whose change scales with the displacement, as a sensor sensitivity that changes does
    (:meth:`LoopFront.alike_outside`, :mod:`.alike`; reported in ``caveats``). ``heldout_shrink`` of an effect is
    the shrink of the model it was last tried in (``added_to`` lists the effects that model already
@@ -46,7 +47,7 @@ from afmsim.reproducible import single_blas_thread
 
 from ..engine import Front, Rules, attribute, conclude, effect_lines, ratio_text, rms, verdict_text
 from .alike import (RATE_WIDTH_ALIKE, RATE_WIDTH_COMPETITOR, SENSITIVITY_ALIKE, fast_relaxation, fast_share,
-                    gain_fits_as_well, lag_alone, rate_width_fits_as_well, rate_width_over_lag_delta_bic,
+                    gain_fits_as_well, without_ringing, rate_width_fits_as_well, rate_width_over_lag_delta_bic,
                     scales_with_displacement)
 from .localise import localise
 from .coupling import coupling_output, coupling_text
@@ -119,7 +120,7 @@ class LoopFront(Front):
     def __init__(self, rec: LoopRecord, design: Design, held: np.ndarray, baseline: str):
         self.rec, self.design, self.held, self.kind = rec, design, held, baseline
         self._fits: dict[tuple, FittedModel] = {}
-        #: Training ΔBIC of the rate-dependent width over the last dynamics lag alone judged by
+        #: Training ΔBIC of the rate-dependent width over the last dynamics term without ringing judged by
         #: :meth:`alike_outside` (:func:`.alike.rate_width_over_lag_delta_bic`; None before any)
         self.lag_rival: float | None = None
 
@@ -152,15 +153,16 @@ class LoopFront(Front):
 
     def alike_outside(self, fitted: FittedModel, effect: str) -> str | None:
         """What outside the candidate set this record cannot tell ``effect``'s fitted term from
-        (:mod:`.alike`): :data:`.alike.RATE_WIDTH_ALIKE` for a dynamics term fitted as a lag alone
-        that a rate-dependent loop width fits as well on the training part (a resonance is linear
-        dynamics' own signature) and for a creep that relaxes before its window;
+        (:mod:`.alike`): :data:`.alike.RATE_WIDTH_ALIKE` for a dynamics term without ringing (a lag
+        alone, or with a mode seen by its inertia only) that a rate-dependent loop width fits as well
+        on the training part (a mode that rings is linear dynamics' own signature) and for a creep
+        that relaxes before its window;
         :data:`.alike.SENSITIVITY_ALIKE` for a drift whose change scales with the displacement and
         for a creep that a sensitivity change fits as well (both on the training part and the
         scored held-out samples)."""
         params = fitted.params.get(effect)
         if effect == "dynamics":
-            if not lag_alone(params):
+            if not without_ringing(params):
                 return None
             base = tuple(e for e in fitted.spec.effects if e != "dynamics")
             without, rate = self.fit(base), self.fit(base + (RATE_WIDTH_COMPETITOR,))
@@ -419,27 +421,28 @@ def loop_summary(rep: dict) -> str:
 
 
 def _note_lag_rival(dynamics: dict | None, rival: float | None) -> None:
-    """Give a dynamics lag alone that was named or withheld (:meth:`LoopFront.alike_outside`) the
+    """Give a dynamics term without ringing that was named or withheld (:meth:`LoopFront.alike_outside`) the
     training ΔBIC of the rate-dependent width over it, ``rate_width_delta_bic`` (the last judgement
     is the deciding one: a withheld or named term is not tried again)."""
-    if dynamics is None or rival is None or not lag_alone(dynamics.get("params")):
+    if dynamics is None or rival is None or not without_ringing(dynamics.get("alike_params", dynamics.get("params"))):
         return
     if dynamics.get("significant") or dynamics.get("alike_outside"):
         dynamics["rate_width_delta_bic"] = round(float(rival), 1)
 
 
 def _lag_named_line(rep: dict) -> list[str]:
-    """The summary's line for a lag alone that was named: what it beat."""
+    """The summary's line for a dynamics term without ringing that was named: what it beat."""
     dyn = next((e for e in rep["effects"] if e["name"] == "dynamics"), None)
     if dyn is None or not dyn.get("significant") or "rate_width_delta_bic" not in dyn:
         return []
-    return [f"Named: dynamics as a lag alone (τ = {dyn['params']['lag_time_constant_s'] * 1e3:.3g} ms, no resonance) — "
+    return [f"Named: dynamics {_without_ringing_text(dyn['params'])} — "
             f"{RATE_WIDTH_ALIKE} fits the training part worse (ΔBIC {dyn['rate_width_delta_bic']:+.0f} against the lag)."]
 
 
 def _withheld(rep: dict) -> list[dict]:
     """A ``caveats`` entry for each candidate that passed the test and was not named
-    (:meth:`LoopFront.alike_outside`): a dynamics lag alone (its time constant), a creep that
+    (:meth:`LoopFront.alike_outside`): a dynamics term without ringing (its delay, and the mode seen
+    by its inertia where there is one), a creep that
     relaxes before its window (its slope and the share of its step response reached by ``t1_s``), a
     drift (its rate) or a creep (its slope) whose change scales with the displacement, with its
     held-out shrink and what it is alike."""
@@ -449,10 +452,10 @@ def _withheld(rep: dict) -> list[dict]:
             continue
         entry = {"effect": e["name"], "named": False, "heldout_shrink": e["heldout_shrink"],
                  "alike": e["alike_outside"]}
-        params = e["params"]
+        params = e.get("alike_params", e["params"])  # the term as it was judged, not as the final fit has it
         if e["name"] == "dynamics":
             entry.update(kind="lag_only", lag_time_constant_s=params.get("lag_time_constant_s"),
-                         rate_width_delta_bic=e.get("rate_width_delta_bic"))
+                         resonance_hz=params.get("resonance_hz"), rate_width_delta_bic=e.get("rate_width_delta_bic"))
         elif e["name"] == "creep" and e["alike_outside"] == RATE_WIDTH_ALIKE:
             entry.update(kind="fast_relaxation", gamma_per_decade=params["gamma_per_decade"],
                          fast_share=round(fast_share(params), 3), t1_s=params["t1_s"])
@@ -464,10 +467,20 @@ def _withheld(rep: dict) -> list[dict]:
     return out
 
 
+def _without_ringing_text(params: dict) -> str:
+    """How a dynamics term without ringing reads: a lag alone, or a lag with a mode seen only by its
+    inertia (:func:`.alike.without_ringing`)."""
+    delay = f"{params['lag_time_constant_s'] * 1e3:.3g} ms"
+    if params.get("resonance_hz") is None:
+        return f"as a lag alone (τ = {delay}, no resonance)"
+    return (f"as a lag with a mode seen only by its inertia (delay {delay}, f0 = {params['resonance_hz']:.3g} Hz; "
+            "the drive never rings it)")
+
+
 def _caveat_line(caveat: dict) -> str:
     """The summary's "Not named" line of a ``caveats`` entry (:func:`_withheld`)."""
     if caveat["kind"] == "lag_only":
-        return (f"Not named: dynamics as a lag alone (τ = {caveat['lag_time_constant_s'] * 1e3:.3g} ms, no resonance) "
+        return (f"Not named: dynamics {_without_ringing_text(caveat)} "
                 f"passes the test (held-out shrink {caveat['heldout_shrink']:.0%}), but {caveat['alike']} fits the "
                 f"training part at least as well (ΔBIC {caveat['rate_width_delta_bic']:+.0f} against the lag), and this "
                 "record cannot tell the two apart; a drive that rings the stage (a step, a fast reversal) would.")
