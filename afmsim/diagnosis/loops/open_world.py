@@ -168,8 +168,11 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: development seeds 901, 902 and 905, measured on the spent records of 47001–47003: no verdict changed);
 #: 55001–55003 first for its fine grids of up to 128 levels and the bar its start must pass
 #: (prompted by probe seeds 906–907, measured on the 27 spent records of 47001–47003 and
-#: 53001–53003 whose comb stood out: no verdict changed).
-FRESH_SEEDS = (55001, 55002, 55003)
+#: 53001–53003 whose comb stood out: no verdict changed); 56001–56003 first for a dynamics mode the
+#: drive never rings, scanned by its inertia (:func:`.model.scan_resonance`; prompted by the
+#: resonances under sines that 55001–55003 missed, measured on its spent records and the
+#: rate-width distractors of 47001–55003).
+FRESH_SEEDS = (56001, 56002, 56003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
