@@ -47,8 +47,8 @@ from afmsim.reproducible import single_blas_thread
 
 from ..engine import Front, Rules, attribute, conclude, effect_lines, ratio_text, rms, verdict_text
 from .alike import (RATE_WIDTH_ALIKE, RATE_WIDTH_COMPETITOR, SENSITIVITY_ALIKE, fast_relaxation, fast_share,
-                    gain_fits_as_well, without_ringing, rate_width_fits_as_well, rate_width_over_lag_delta_bic,
-                    scales_with_displacement)
+                    gain_fits_as_well, rate_width_fits_as_well, rate_width_over_lag_delta_bic,
+                    scales_with_displacement, without_ringing)
 from .localise import localise
 from .coupling import coupling_output, coupling_text
 from .minor_loop import minor_loop_law
