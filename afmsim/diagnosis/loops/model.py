@@ -1319,8 +1319,9 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
             return best
 
         def with_resonance(fits, lag, error_lag, retune, scan):
-            """(training error, lag, n_eff) after the resonance step on ``fits`` (kept only where
-            the training BIC asks for it); ``retune``: search τ again under the mode; ``scan``: scan
+            """(training error, lag, n_eff, how the kept mode showed itself — ``"ringing"`` (ARX) or
+            ``"inertia"`` (:func:`scan_resonance`), None without one) after the resonance step on
+            ``fits`` (kept only where the training BIC asks for it); ``retune``: search τ again under the mode; ``scan``: scan
             for a mode the ARX fit does not find (the output place only: in front of the stack the
             scan kept no mode on the spent records it was measured on, and doubled its cost)."""
             prediction = fits(lag)[0]
@@ -1328,7 +1329,7 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
             estimate = estimate_resonance(fits.x, prediction, fits.train, d.dt)
             tau, seen = lag[1], "ringing"
             if estimate is None and not scan:
-                return error_lag, lag, n_eff
+                return error_lag, lag, n_eff, None
             if estimate is None:
                 # a drive that never rings the mode shows its inertia and its delay 2ζ/ω0 only: scanned
                 # by refits with the lag shortened to keep the delay the lag alone found
@@ -1354,13 +1355,10 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
             # a mode no ringing shows is kept only where its inertia shows: the gain rising with frequency
             shows = seen == "ringing" or gain_rises(lag_delay(lag_mode[0], lag_mode[1], d.dt), *lag_mode[2])
             if shows and n_eff * np.log(error_mode / error_lag) + 2 * np.log(n_eff) < -RESONANCE_BIC:
-                mode_seen[lag_mode[2]] = seen
-                return error_mode, lag_mode, n_eff
-            return error_lag, lag, n_eff
+                return error_mode, lag_mode, n_eff, seen
+            return error_lag, lag, n_eff, None
 
-        mode_seen = {}  # how each kept mode showed itself: "ringing" (ARX) or "inertia" (scan_resonance)
-
-        error_out, lag, n_eff = with_resonance(search, *best_lag(None)[::-1], retune=True, scan=True)
+        error_out, lag, n_eff, seen = with_resonance(search, *best_lag(None)[::-1], retune=True, scan=True)
         place, tau_drive = "output", 0.0
         if kind == "preisach":
             # the lag in front of the hysteresis instead (an amplifier pole): its own τ search and
@@ -1393,11 +1391,11 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
                             bounds=(np.log(grid[max(k - 1, 0)]), np.log(grid[min(k + 1, len(grid) - 1)])),
                             method="bounded", options={"xatol": 1e-3})
             tau_best = min(drive_errors, key=lambda tau: drive_errors[tau][0])
-            error_drive, lag_drive, _ = with_resonance(drive_errors[tau_best][1], ("tustin", 0.0, None),
-                                                       drive_errors[tau_best][0], retune=False, scan=False)
+            error_drive, lag_drive, _, seen_drive = with_resonance(
+                drive_errors[tau_best][1], ("tustin", 0.0, None), drive_errors[tau_best][0], retune=False, scan=False)
             extra_modes = (lag_drive[2] is not None) - (lag[2] is not None)
             if n_eff * np.log(error_drive / error_out) + 2 * extra_modes * np.log(n_eff) < -RESONANCE_BIC:
-                place, tau_drive, lag = "drive", tau_best, lag_drive
+                place, tau_drive, lag, seen = "drive", tau_best, lag_drive, seen_drive
                 fitted = drive_fits(tau_best, d.n_levels)
         discretisation, tau, mode = lag
         delay = lag_delay(discretisation, tau, d.dt) + tau_drive
@@ -1406,7 +1404,7 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
         if mode is not None:
             f0, zeta = mode
             delay += 2 * zeta / (2 * np.pi * f0)
-            params["dynamics"].update(resonance_hz=float(f0), damping_ratio=float(zeta), resonance_seen=mode_seen[mode])
+            params["dynamics"].update(resonance_hz=float(f0), damping_ratio=float(zeta), resonance_seen=seen)
             n_params += 2
         params["dynamics"]["lag_time_constant_s"] = float(delay)
     pred, wf, wp, hpart, creep = fitted(lag)
