@@ -20,6 +20,13 @@ tests; a term that something outside the set can stand in for is reported and no
   ``(1 + g)·x``, a residual ``g(t)·x`` that an additive drift follows only through the mean
   displacement. Where the displacement times the drift's own time columns fits the record's
   residual decisively better than the drift alone, the drift term stands in for such a change;
+* a ``drift`` that a step at one instant fits as well (:func:`slip_instant`,
+  :func:`step_over_drift_delta_bic`, :data:`SLIP_ALIKE`): a mechanical slip moves the displacement
+  once and leaves it there, which a drift's slope and curvature follow only in part; on a slip
+  inside the training part the drift's extrapolation can still match the level after it. The two
+  compete on the training part, each refitted with the hysteresis (the step's instant chosen on the
+  residual of the model without the drift); where the step does at least as well there and
+  predicts the held-out part at least as well too, the record shows a slip as much as a drift;
 * a ``creep`` whose relaxation is over before the creep window (:func:`fast_relaxation`,
   :data:`RATE_WIDTH_ALIKE`): most of the bank's step response is reached within its first
   ``t1_s`` (0.1 s) and its slope over the window is below the plausible creep of
@@ -46,11 +53,13 @@ from .model import RATE_WIDTH_COMPETITOR, drift_curvature_column
 __all__ = ["RATE_WIDTH_ALIKE", "SENSITIVITY_ALIKE", "SENSITIVITY_DELTA_BIC", "SMOOTH_DEGREE", "FAST_SHARE",
            "GAIN_DEGREE", "RATE_WIDTH_COMPETITOR", "without_ringing", "rate_width_over_lag_delta_bic",
            "rate_width_fits_as_well", "scales_with_displacement", "sensitivity_delta_bic", "fast_share",
-           "fast_relaxation", "gain_over_creep_delta_bic", "gain_fits_as_well"]
+           "fast_relaxation", "gain_over_creep_delta_bic", "gain_fits_as_well", "SLIP_ALIKE", "STEP_INSTANTS",
+           "slip_instant", "step_over_drift_delta_bic", "steps_in_time"]
 
 RATE_WIDTH_ALIKE = "a loop width that grows with the drive rate (rate-dependent hysteresis, not a candidate)"
 SENSITIVITY_ALIKE = ("a change that scales with the displacement, as a sensor sensitivity that changes during the "
                      "record gives (not a candidate)")
+SLIP_ALIKE = "a step in the displacement at one instant, as a mechanical slip gives (not a candidate)"
 #: ΔBIC (decorrelated samples) the displacement-scaled columns must reach for a drift to read as a
 #: sensitivity change: "very strong" evidence on Kass & Raftery's scale (J. Am. Stat. Assoc. 90 (1995)
 #: 773), not the engine's −6: the test's first form (no smooth term, the prediction as the
@@ -60,6 +69,9 @@ SENSITIVITY_ALIKE = ("a change that scales with the displacement, as a sensor se
 #: withheld); the 12 sensitivity ramps (0.5 %, 2 %) −606 to +5.1, ten below −10 (the two above:
 #: ramps the record's scored samples barely see).
 SENSITIVITY_DELTA_BIC = -10.0
+#: Candidate instants of the step that competes with a drift (:func:`step_over_drift_delta_bic`),
+#: evenly spaced over the scored span: 0.5 % of it apart, finer than a drift's curvature can bend.
+STEP_INSTANTS = 200
 #: Degree of the smooth additive change in time (Legendre polynomials over the scored span) fitted
 #: before the displacement-scaled columns are credited: a drift whose shape the candidate's
 #: parabola misses (an exponential warm-up) leaves a smooth residual in time that the
@@ -137,6 +149,44 @@ def sensitivity_delta_bic(t, x, prediction, displacement, train, scored) -> floa
     plain = np.column_stack([smooth, time_cols, xs])
     scaled = np.hstack([plain, xs[:, None] * time_cols])
     return training_delta_bic(_remainder(plain, r), _remainder(scaled, r), 2)
+
+
+def slip_instant(t, x, without_drift, displacement, train) -> float:
+    """Instant (s) of the step that best fits the training residual ``x − without_drift`` (m) of the
+    model without the drift, beside an offset and the normalised ``displacement`` (the hysteresis
+    part): the best of :data:`STEP_INSTANTS` evenly spaced candidates inside the training part."""
+    t, x, without_drift, displacement = (np.asarray(a, dtype=float) for a in (t, x, without_drift, displacement))
+    tt = t[train]
+    r = (x - without_drift)[train]
+    q, _ = np.linalg.qr(np.column_stack([np.ones(tt.size), _normalised(displacement[train])]))
+    r -= q @ (q.T @ r)
+    # a step at each candidate instant with the plain columns projected out: the one that takes most of r
+    instants = np.linspace(tt[0], tt[-1], STEP_INSTANTS + 2)[1:-1]
+    steps = (tt[:, None] >= instants[None, :]).astype(float)
+    steps -= q @ (q.T @ steps)
+    norms = np.einsum("ij,ij->j", steps, steps)
+    taken = np.where(norms > 0, (steps.T @ r) ** 2 / np.where(norms > 0, norms, 1.0), 0.0)
+    return float(instants[int(np.argmax(taken))])
+
+
+def step_over_drift_delta_bic(r_without, r_drift, r_step, k_drift: int, k_step: int) -> float:
+    """Training ΔBIC (decorrelated samples, :func:`.engine.training_delta_bic`) of a step in time
+    over the drift it competes with: both against the model without the drift, whose training
+    residual is ``r_without``; ``r_drift``/``r_step`` the training residuals (m) of that model plus
+    the drift (``k_drift`` parameters more) or plus a step at :func:`slip_instant` (``k_step``: its
+    height and instant), each refitted with the hysteresis. Below 0 where the step fits the training
+    part better."""
+    return training_delta_bic(r_without, r_step, k_step) - training_delta_bic(r_without, r_drift, k_drift)
+
+
+def steps_in_time(delta_bic: float, heldout_step: float, heldout_drift: float) -> bool:
+    """True where a step at one instant fits the training part at least as well as the drift
+    (``delta_bic`` of :func:`step_over_drift_delta_bic` ≤ 0) and predicts the scored held-out samples
+    at least as well (its held-out RMS ``heldout_step`` ≤ the drift's ``heldout_drift``, m):
+    :data:`SLIP_ALIKE`. A slip leaves the level after it where it is; a drift that turns once in the
+    training part (a random walk) goes on wandering after it, and a step then predicts the held-out
+    part worse than the drift does."""
+    return delta_bic <= 0.0 and heldout_step <= heldout_drift
 
 
 def scales_with_displacement(t, x, prediction, displacement, train, scored) -> bool:

@@ -46,9 +46,10 @@ import numpy as np
 from afmsim.reproducible import single_blas_thread
 
 from ..engine import Front, Rules, attribute, conclude, effect_lines, ratio_text, rms, verdict_text
-from .alike import (RATE_WIDTH_ALIKE, RATE_WIDTH_COMPETITOR, SENSITIVITY_ALIKE, fast_relaxation, fast_share,
-                    gain_fits_as_well, rate_width_fits_as_well, rate_width_over_lag_delta_bic,
-                    scales_with_displacement, without_ringing)
+from .alike import (RATE_WIDTH_ALIKE, RATE_WIDTH_COMPETITOR, SENSITIVITY_ALIKE, SLIP_ALIKE, fast_relaxation,
+                    fast_share, gain_fits_as_well, rate_width_fits_as_well, rate_width_over_lag_delta_bic,
+                    scales_with_displacement, slip_instant, step_over_drift_delta_bic, steps_in_time,
+                    without_ringing)
 from .localise import localise
 from .coupling import coupling_output, coupling_text
 from .minor_loop import minor_loop_law
@@ -123,6 +124,10 @@ class LoopFront(Front):
         #: Training ΔBIC of the rate-dependent width over the last dynamics term without ringing judged by
         #: :meth:`alike_outside` (:func:`.alike.rate_width_over_lag_delta_bic`; None before any)
         self.lag_rival: float | None = None
+        #: The step in time against the last drift judged by :meth:`alike_outside`: its training ΔBIC
+        #: over the drift (:func:`.alike.step_over_drift_delta_bic`), instant (s), size (m) and the
+        #: held-out RMS (m) of both (None before any)
+        self.step_rival: dict | None = None
 
     def fit(self, effects: tuple, start=None) -> FittedModel:
         """The model with ``effects``, fitted once per set of effects in this order (the fit is
@@ -159,7 +164,8 @@ class LoopFront(Front):
         that relaxes before its window;
         :data:`.alike.SENSITIVITY_ALIKE` for a drift whose change scales with the displacement and
         for a creep that a sensitivity change fits as well (both on the training part and the
-        scored held-out samples)."""
+        scored held-out samples); :data:`.alike.SLIP_ALIKE` for a drift that a step at one instant
+        fits as well (on the same samples)."""
         params = fitted.params.get(effect)
         if effect == "dynamics":
             if not without_ringing(params):
@@ -178,10 +184,23 @@ class LoopFront(Front):
         displacement = fitted.prediction if fitted.hysteresis is None else fitted.hysteresis
         scored = d.train | self.held
         if effect == "drift":
-            alike = scales_with_displacement(d.t, self.rec.x, fitted.prediction, displacement, d.train, scored)
-        else:
-            without = self.fit(tuple(e for e in fitted.spec.effects if e != "creep"))
-            alike = gain_fits_as_well(d.t, self.rec.x, fitted.prediction, without.prediction, displacement, scored)
+            if scales_with_displacement(d.t, self.rec.x, fitted.prediction, displacement, d.train, scored):
+                return SENSITIVITY_ALIKE
+            base = tuple(e for e in fitted.spec.effects if e != "drift")
+            without = self.fit(base)
+            at = slip_instant(d.t, self.rec.x, without.prediction, displacement, d.train)
+            step = fit_model(d, ModelSpec(kind=self.kind, effects=base, slip_at_s=at))
+            delta = step_over_drift_delta_bic(self.train_residual(without), self.train_residual(fitted),
+                                              self.train_residual(step), fitted.n_params - without.n_params,
+                                              step.n_params - without.n_params)
+            self.step_rival = {"step_delta_bic": round(float(delta), 1), "step_at_s": round(at, 3),
+                               "step_m": step.params["slip"]["size_m"],
+                               "step_heldout_rms_m": rms(self.heldout_residual(step)),
+                               "drift_heldout_rms_m": rms(self.heldout_residual(fitted))}
+            return SLIP_ALIKE if steps_in_time(delta, self.step_rival["step_heldout_rms_m"],
+                                               self.step_rival["drift_heldout_rms_m"]) else None
+        without = self.fit(tuple(e for e in fitted.spec.effects if e != "creep"))
+        alike = gain_fits_as_well(d.t, self.rec.x, fitted.prediction, without.prediction, displacement, scored)
         return SENSITIVITY_ALIKE if alike else None
 
 
@@ -287,6 +306,7 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
     _read_untrained_split(outcome["unexplained"], split)
     rest = rest_noise(rec, sigma)
     _note_lag_rival(att.evaluations.get("dynamics"), front.lag_rival)
+    _note_step_rival(att.evaluations.get("drift"), front.step_rival)
     report = {
         "record": {"source": rec.source, "samples": n, "sample_interval_s": rec.dt, "decimation": rec.decimation,
                    "duration_s": float(rec.t[-1] - rec.t[0]),
@@ -430,6 +450,14 @@ def _note_lag_rival(dynamics: dict | None, rival: float | None) -> None:
         dynamics["rate_width_delta_bic"] = round(float(rival), 1)
 
 
+def _note_step_rival(drift: dict | None, rival: dict | None) -> None:
+    """Give a drift withheld as a step in time (:data:`.alike.SLIP_ALIKE`) the step's training ΔBIC
+    over it, instant, size and the held-out RMS of both (:meth:`LoopFront.alike_outside`)."""
+    if drift is None or rival is None or drift.get("alike_outside") != SLIP_ALIKE:
+        return
+    drift.update(rival)
+
+
 def _lag_named_line(rep: dict) -> list[str]:
     """The summary's line for a dynamics term without ringing that was named: what it beat."""
     dyn = next((e for e in rep["effects"] if e["name"] == "dynamics"), None)
@@ -444,8 +472,9 @@ def _withheld(rep: dict) -> list[dict]:
     (:meth:`LoopFront.alike_outside`): a dynamics term without ringing (its delay, and the mode seen
     by its inertia where there is one), a creep that
     relaxes before its window (its slope and the share of its step response reached by ``t1_s``), a
-    drift (its rate) or a creep (its slope) whose change scales with the displacement, with its
-    held-out shrink and what it is alike."""
+    drift (its rate) or a creep (its slope) whose change scales with the displacement, a drift that
+    a step in time fits as well (the step's instant, size and ΔBIC over the drift), with its held-out
+    shrink and what it is alike."""
     out = []
     for e in rep["effects"]:
         if not e.get("alike_outside"):
@@ -461,6 +490,10 @@ def _withheld(rep: dict) -> list[dict]:
                          fast_share=round(fast_share(params), 3), t1_s=params["t1_s"])
         elif e["name"] == "creep":
             entry.update(kind="scales_with_displacement", gamma_per_decade=params["gamma_per_decade"])
+        elif e["alike_outside"] == SLIP_ALIKE:
+            entry.update(kind="step_in_time", rate_m_per_s=params.get("rate_m_per_s"),
+                         **{k: e.get(k) for k in ("step_at_s", "step_m", "step_delta_bic", "step_heldout_rms_m",
+                                                  "drift_heldout_rms_m")})
         else:
             entry.update(kind="scales_with_displacement", rate_m_per_s=params.get("rate_m_per_s"))
         out.append(entry)
@@ -493,6 +526,12 @@ def _caveat_line(caveat: dict) -> str:
     if caveat["effect"] == "creep":
         return (f"Not named: creep ({caveat['gamma_per_decade'] * 100:.2g} %/decade) {shrink}, but a change in "
                 f"time that scales with the displacement fits the record at least as well: {caveat['alike']}.")
+    if caveat["kind"] == "step_in_time":
+        return (f"Not named: drift ({caveat['rate_m_per_s'] * 6e10:.3g} nm/min) {shrink}, but a step of "
+                f"{caveat['step_m'] * 1e9:+.3g} nm at {caveat['step_at_s']:.4g} s fits the training part at least as well "
+                f"(ΔBIC {caveat['step_delta_bic']:+.0f} against the drift) and predicts the held-out part as well "
+                f"(RMS {caveat['step_heldout_rms_m'] * 1e9:.3g} nm, the drift {caveat['drift_heldout_rms_m'] * 1e9:.3g} nm): "
+                f"{caveat['alike']}.")
     return (f"Not named: drift ({caveat['rate_m_per_s'] * 6e10:.3g} nm/min) {shrink}, but the record's slow change "
             f"scales with the displacement, which an additive drift does not: {caveat['alike']}.")
 

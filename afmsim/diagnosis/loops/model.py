@@ -567,8 +567,13 @@ def creep_gamma_from_bank(c, taus, t1, t2) -> float:
 
 @dataclass(frozen=True)
 class ModelSpec:
-    kind: str = "preisach"  # "preisach" | "bouc_wen" | "play" | "sharp" | "symmetric"
+    """What :func:`fit_model` fits: the hysteresis family ``kind`` ("preisach" | "bouc_wen" | "play" |
+    "sharp" | "symmetric") and the candidate ``effects``; ``slip_at_s``, where given, adds a step of
+    free height at that instant (s) — a mechanical slip, a competitor outside the candidate set
+    (:func:`.alike.step_over_drift`), counted as two parameters (height and instant)."""
+    kind: str = "preisach"
     effects: tuple[str, ...] = ()
+    slip_at_s: float | None = None
 
 
 @dataclass
@@ -1180,7 +1185,7 @@ def fit_model(d: Design, spec: ModelSpec) -> FittedModel:
     if spec.kind not in (*FAMILIES, "symmetric"):
         raise ValueError(f"model kind must be one of {(*FAMILIES, 'symmetric')}, got {spec.kind!r}")
     fitted, transform, extra = _fit_columns(d, spec, d.hyst(spec.kind))
-    if spec.kind != "bouc_wen" or not spec.effects:
+    if spec.kind != "bouc_wen" or (not spec.effects and spec.slip_at_s is None):
         return fitted
     u = d.normalised_voltage()
     shape, _ = fit_bouc_wen_shape(u, d.block, d.free, d.x, d.train, transform=transform,
@@ -1281,11 +1286,14 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
         rate_cols = d.rate_width_columns()
         extra += list(rate_cols.T)
         names += [RATE_WIDTH_COMPETITOR] + ["_"] * (rate_cols.shape[1] - 1)
+    if spec.slip_at_s is not None:
+        extra.append((d.t >= spec.slip_at_s).astype(float))
+        names.append("slip")
     extra = np.column_stack(extra) if extra else np.empty((d.t.size, 0))
     params: dict = {}
     # + β, γ, n; + the placed thresholds
     n_params = hyst_cols.shape[1] + extra.shape[1] + (3 if kind == "bouc_wen" else 0) + \
-        (d.sharp_grid["levels"].size if kind == "sharp" else 0)
+        (d.sharp_grid["levels"].size if kind == "sharp" else 0) + (spec.slip_at_s is not None)
 
     fitted = _LagFits(d, hyst_cols, smooth, n_free_h, extra, creep="creep" in eff)
 
@@ -1419,6 +1427,8 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
             params["drift"] = {"rate_m_per_s": rate, "linear_m_per_s": a1, "quadratic_m_per_s2": a2}
         elif name == "cross_coupling":
             params[name] = {"coefficient": val}
+        elif name == "slip":
+            params[name] = {"at_s": spec.slip_at_s, "size_m": val}
     if creep is not None:
         c, taus = creep
         t1 = max(0.1, 10 * d.dt)
