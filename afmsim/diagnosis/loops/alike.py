@@ -2,8 +2,9 @@
 
 :meth:`.attribute.LoopFront.alike_outside` asks this of every candidate that passes the engine's
 tests; a term that something outside the set can stand in for is reported and not named
-(:func:`afmsim.diagnosis.engine.attribute`; docs/diagnosis.md, "A lag alone is not named" and
-"A drift that scales with the displacement is not named").
+(:func:`afmsim.diagnosis.engine.attribute`; docs/diagnosis.md, "A lag alone is not named",
+"A drift that scales with the displacement is not named" and "A drift that a step in time fits as
+well is not named").
 
 * a ``dynamics`` term that shows no ringing — a lag alone, or a lag with a mode seen only by its
   inertia on a drive far below it (:func:`without_ringing`) — that a loop width
@@ -69,8 +70,8 @@ SLIP_ALIKE = "a step in the displacement at one instant, as a mechanical slip gi
 #: withheld); the 12 sensitivity ramps (0.5 %, 2 %) −606 to +5.1, ten below −10 (the two above:
 #: ramps the record's scored samples barely see).
 SENSITIVITY_DELTA_BIC = -10.0
-#: Candidate instants of the step that competes with a drift (:func:`step_over_drift_delta_bic`),
-#: evenly spaced over the scored span: 0.5 % of it apart, finer than a drift's curvature can bend.
+#: Candidate instants of the step that competes with a drift (:func:`slip_instant`), evenly spaced
+#: over the training part: 0.5 % of it apart, finer than a drift's curvature can bend.
 STEP_INSTANTS = 200
 #: Degree of the smooth additive change in time (Legendre polynomials over the scored span) fitted
 #: before the displacement-scaled columns are credited: a drift whose shape the candidate's

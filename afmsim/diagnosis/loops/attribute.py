@@ -165,7 +165,8 @@ class LoopFront(Front):
         :data:`.alike.SENSITIVITY_ALIKE` for a drift whose change scales with the displacement and
         for a creep that a sensitivity change fits as well (both on the training part and the
         scored held-out samples); :data:`.alike.SLIP_ALIKE` for a drift that a step at one instant
-        fits as well (on the same samples)."""
+        fits as well on the training part and predicts as well on the scored held-out samples
+        (:func:`.alike.steps_in_time`)."""
         params = fitted.params.get(effect)
         if effect == "dynamics":
             if not without_ringing(params):
@@ -473,8 +474,8 @@ def _withheld(rep: dict) -> list[dict]:
     by its inertia where there is one), a creep that
     relaxes before its window (its slope and the share of its step response reached by ``t1_s``), a
     drift (its rate) or a creep (its slope) whose change scales with the displacement, a drift that
-    a step in time fits as well (the step's instant, size and ΔBIC over the drift), with its held-out
-    shrink and what it is alike."""
+    a step in time fits as well (the step's instant, size, ΔBIC over the drift and the held-out RMS
+    of both), with its held-out shrink and what it is alike."""
     out = []
     for e in rep["effects"]:
         if not e.get("alike_outside"):

@@ -570,7 +570,7 @@ class ModelSpec:
     """What :func:`fit_model` fits: the hysteresis family ``kind`` ("preisach" | "bouc_wen" | "play" |
     "sharp" | "symmetric") and the candidate ``effects``; ``slip_at_s``, where given, adds a step of
     free height at that instant (s) — a mechanical slip, a competitor outside the candidate set
-    (:func:`.alike.step_over_drift`), counted as two parameters (height and instant)."""
+    (:func:`.alike.slip_instant`), counted as two parameters (height and instant)."""
     kind: str = "preisach"
     effects: tuple[str, ...] = ()
     slip_at_s: float | None = None
