@@ -86,6 +86,10 @@ def _train_fit(columns, r, train):
     return rest[train], rest[~train]
 
 
+def _rms(a) -> float:
+    return float(np.sqrt(np.mean(np.square(a))))
+
+
 def test_a_step_in_time_is_told_from_a_drift_of_the_same_size():
     """A 40 nm slip at 22 s and drifts that cover 40 nm over the record (a steady one, a warm-up) on
     the same triangle record: the slip's instant is found, and a step there fits the slip better
@@ -103,8 +107,7 @@ def test_a_step_in_time_is_told_from_a_drift_of_the_same_size():
         r_drift, held_drift = _train_fit(drift_cols, r, train)
         r_step, held_step = _train_fit(np.column_stack([np.ones(t.size), t >= at]), r, train)
         delta = step_over_drift_delta_bic(r[train] - r[train].mean(), r_drift, r_step, 2, 2)
-        rms = lambda a: float(np.sqrt(np.mean(a**2)))  # noqa: E731
-        assert steps_in_time(delta, rms(held_step), rms(held_drift)) == is_slip, (at, delta)
+        assert steps_in_time(delta, _rms(held_step), _rms(held_drift)) == is_slip, (at, delta)
         if is_slip:
             assert abs(at - 22.0) < 0.2
 
