@@ -8,8 +8,8 @@ import afmsim.diagnosis.loops.model as model
 import afmsim.diagnosis.loops.open_world as open_world
 import afmsim.diagnosis.loops.validation as validation
 from afmsim.diagnosis.loops.alike import (SENSITIVITY_ALIKE, SENSITIVITY_DELTA_BIC, SLIP_ALIKE,
-                                          scales_with_displacement, sensitivity_delta_bic, slip_instant,
-                                          step_over_drift_delta_bic, steps_in_time)
+                                          rival_over_term_delta_bic, scales_with_displacement,
+                                          sensitivity_delta_bic, slip_instant, steps_in_time)
 from afmsim.diagnosis.loops.attribute import diagnose_record
 from afmsim.diagnosis.loops.model import drift_curvature_column
 from afmsim.diagnosis.loops.open_world import case_plan, make_case
@@ -106,7 +106,7 @@ def test_a_step_in_time_is_told_from_a_drift_of_the_same_size():
         r = change + noise
         r_drift, held_drift = _train_fit(drift_cols, r, train)
         r_step, held_step = _train_fit(np.column_stack([np.ones(t.size), t >= at]), r, train)
-        delta = step_over_drift_delta_bic(r[train] - r[train].mean(), r_drift, r_step, 2, 2)
+        delta = rival_over_term_delta_bic(r[train] - r[train].mean(), r_drift, r_step, 2, 2)
         assert steps_in_time(delta, _rms(held_step), _rms(held_drift)) == is_slip, (at, delta)
         if is_slip:
             assert abs(at - 22.0) < 0.2

@@ -177,7 +177,7 @@ def _driven_through_pole(seed, pole_hz):
 def _named_lag(rep: dict, summary: str) -> dict:
     """The dynamics evaluation of a record whose only missing term is a lag: it passes the test,
     takes most of the gap, and is named — a loop width growing with the drive rate, its rival
-    (:func:`afmsim.diagnosis.loops.alike.rate_width_over_lag_delta_bic`), fits the training part worse."""
+    (:func:`afmsim.diagnosis.loops.alike.rival_over_term_delta_bic`), fits the training part worse."""
     dyn = {e["name"]: e for e in rep["effects"]}["dynamics"]
     assert dyn["significant"] and "alike_outside" not in dyn and rep["verdict"][:1] == ["dynamics"], summary
     assert dyn["heldout_shrink"] > 0.5 and not rep["caveats"], summary

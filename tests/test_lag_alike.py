@@ -1,13 +1,13 @@
 """A dynamics term without ringing — a lag alone, or a lag with a mode seen only by its inertia
 (model.scan_resonance) — competes with a loop width that grows with the drive rate
-(afmsim.diagnosis.loops.alike: without_ringing, rate_width_over_lag_delta_bic;
+(afmsim.diagnosis.loops.alike: without_ringing, rival_over_term_delta_bic;
 model.Design.rate_width_columns): named where it fits the training part better, reported and not
 named where the width does as well."""
 
 import numpy as np
 import pytest
 
-from afmsim.diagnosis.loops.alike import RATE_WIDTH_ALIKE, rate_width_fits_as_well, rate_width_over_lag_delta_bic
+from afmsim.diagnosis.loops.alike import RATE_WIDTH_ALIKE, rate_width_fits_as_well, rival_over_term_delta_bic
 from afmsim.diagnosis.loops.attribute import diagnose_record
 from afmsim.diagnosis.loops.distractors import _play_varying
 from afmsim.diagnosis.loops.model import (RATE_WIDTH_RADII, RESONANCE_SCAN_POINTS, RESONANCE_SCAN_ZETAS, Design,
@@ -47,11 +47,11 @@ def test_a_lag_and_a_rate_width_compete_on_the_training_part():
     rng = np.random.default_rng(3)
     r0 = rng.normal(size=4000)
     r_lag, r_good, r_none = 0.7 * r0, 0.6 * r0, r0.copy()
-    assert rate_width_over_lag_delta_bic(r0, r_lag, r_good, 2, 5) < 0
-    assert rate_width_fits_as_well(rate_width_over_lag_delta_bic(r0, r_lag, r_good, 2, 5))
-    assert not rate_width_fits_as_well(rate_width_over_lag_delta_bic(r0, r_lag, r_none, 2, 5))
-    assert rate_width_over_lag_delta_bic(r0, r_lag, r_lag, 2, 5) > 0        # equal fit, more parameters
-    assert not rate_width_fits_as_well(rate_width_over_lag_delta_bic(r0, r_lag, r_lag, 2, 5))
+    assert rival_over_term_delta_bic(r0, r_lag, r_good, 2, 5) < 0
+    assert rate_width_fits_as_well(rival_over_term_delta_bic(r0, r_lag, r_good, 2, 5))
+    assert not rate_width_fits_as_well(rival_over_term_delta_bic(r0, r_lag, r_none, 2, 5))
+    assert rival_over_term_delta_bic(r0, r_lag, r_lag, 2, 5) > 0        # equal fit, more parameters
+    assert not rate_width_fits_as_well(rival_over_term_delta_bic(r0, r_lag, r_lag, 2, 5))
 
 
 def _diagnosed(seed: int, index: int, candidates=None):

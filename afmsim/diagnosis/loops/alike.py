@@ -8,7 +8,7 @@ well is not named").
 
 * a ``dynamics`` term that shows no ringing — a lag alone, or a lag with a mode seen only by its
   inertia on a drive far below it (:func:`without_ringing`) — that a loop width
-  growing with the drive rate fits as well (:func:`rate_width_over_lag_delta_bic`,
+  growing with the drive rate fits as well (:func:`rival_over_term_delta_bic`,
   :data:`RATE_WIDTH_ALIKE`): a lag offsets a loop by −τ·ẋ, and a rate-dependent width offsets it
   by a term proportional to the rate that builds up after a reversal as the loop's slope does. The
   two compete on the training part — the model without the lag plus the lag, or plus the
@@ -22,7 +22,7 @@ well is not named").
   displacement. Where the displacement times the drift's own time columns fits the record's
   residual decisively better than the drift alone, the drift term stands in for such a change;
 * a ``drift`` that a step at one instant fits as well (:func:`slip_instant`,
-  :func:`step_over_drift_delta_bic`, :data:`SLIP_ALIKE`): a mechanical slip moves the displacement
+  :func:`steps_in_time`, :data:`SLIP_ALIKE`): a mechanical slip moves the displacement
   once and leaves it there, which a drift's slope and curvature follow only in part; on a slip
   inside the training part the drift's extrapolation can still match the level after it. The two
   compete on the training part, each refitted with the hysteresis (the step's instant chosen on the
@@ -52,10 +52,10 @@ from ..plausible import PLAUSIBLE
 from .model import RATE_WIDTH_COMPETITOR, drift_curvature_column
 
 __all__ = ["RATE_WIDTH_ALIKE", "SENSITIVITY_ALIKE", "SENSITIVITY_DELTA_BIC", "SMOOTH_DEGREE", "FAST_SHARE",
-           "GAIN_DEGREE", "RATE_WIDTH_COMPETITOR", "without_ringing", "rate_width_over_lag_delta_bic",
+           "GAIN_DEGREE", "RATE_WIDTH_COMPETITOR", "without_ringing", "rival_over_term_delta_bic",
            "rate_width_fits_as_well", "scales_with_displacement", "sensitivity_delta_bic", "fast_share",
            "fast_relaxation", "gain_over_creep_delta_bic", "gain_fits_as_well", "SLIP_ALIKE", "STEP_INSTANTS",
-           "slip_instant", "step_over_drift_delta_bic", "steps_in_time"]
+           "slip_instant", "steps_in_time"]
 
 RATE_WIDTH_ALIKE = "a loop width that grows with the drive rate (rate-dependent hysteresis, not a candidate)"
 SENSITIVITY_ALIKE = ("a change that scales with the displacement, as a sensor sensitivity that changes during the "
@@ -113,18 +113,22 @@ def without_ringing(params: dict | None) -> bool:
     return params is not None and ("resonance_hz" not in params or params.get("resonance_seen") == "inertia")
 
 
-def rate_width_over_lag_delta_bic(r_without, r_lag, r_rate, k_lag: int, k_rate: int) -> float:
-    """Training ΔBIC (decorrelated samples, :func:`.engine.training_delta_bic`) of the
-    rate-dependent width over the lag it competes with: both against the model without the lag,
-    whose training residual is ``r_without``; ``r_lag``/``r_rate`` the training residuals (m) of
-    that model plus the lag (``k_lag`` parameters more) or plus the width's columns (``k_rate``).
-    Below 0 where the width fits the training part better after paying for its parameters."""
-    return training_delta_bic(r_without, r_rate, k_rate) - training_delta_bic(r_without, r_lag, k_lag)
+def rival_over_term_delta_bic(r_without, r_term, r_rival, k_term: int, k_rival: int) -> float:
+    """Training ΔBIC (decorrelated samples, :func:`.engine.training_delta_bic`) of a rival from
+    outside the candidate set over the candidate's term it competes with — the rate-dependent width
+    over a lag (:func:`rate_width_fits_as_well`), a step in time over a drift
+    (:func:`steps_in_time`): both against the model without the term, whose training residual is
+    ``r_without``; ``r_term``/``r_rival`` the training residuals (m) of that model plus the term
+    (``k_term`` parameters more) or plus the rival (``k_rival``), each refitted with the
+    hysteresis. Below 0 where the rival fits the training part better after paying for its
+    parameters."""
+    return training_delta_bic(r_without, r_rival, k_rival) - training_delta_bic(r_without, r_term, k_term)
 
 
 def rate_width_fits_as_well(delta_bic: float) -> bool:
     """True where a loop width growing with the drive rate fits the training part at least as well
-    as the lag alone (``delta_bic``, :func:`rate_width_over_lag_delta_bic`, ≤ 0): :data:`RATE_WIDTH_ALIKE`."""
+    as the lag alone (``delta_bic``, :func:`rival_over_term_delta_bic` of the width over the lag, ≤ 0):
+    :data:`RATE_WIDTH_ALIKE`."""
     return delta_bic <= 0.0
 
 
@@ -170,19 +174,10 @@ def slip_instant(t, x, without_drift, displacement, train) -> float:
     return float(instants[int(np.argmax(taken))])
 
 
-def step_over_drift_delta_bic(r_without, r_drift, r_step, k_drift: int, k_step: int) -> float:
-    """Training ΔBIC (decorrelated samples, :func:`.engine.training_delta_bic`) of a step in time
-    over the drift it competes with: both against the model without the drift, whose training
-    residual is ``r_without``; ``r_drift``/``r_step`` the training residuals (m) of that model plus
-    the drift (``k_drift`` parameters more) or plus a step at :func:`slip_instant` (``k_step``: its
-    height and instant), each refitted with the hysteresis. Below 0 where the step fits the training
-    part better."""
-    return training_delta_bic(r_without, r_step, k_step) - training_delta_bic(r_without, r_drift, k_drift)
-
-
 def steps_in_time(delta_bic: float, heldout_step: float, heldout_drift: float) -> bool:
     """True where a step at one instant fits the training part at least as well as the drift
-    (``delta_bic`` of :func:`step_over_drift_delta_bic` ≤ 0) and predicts the scored held-out samples
+    (``delta_bic``: :func:`rival_over_term_delta_bic` of the step, at :func:`slip_instant` with its
+    height and instant as 2 parameters, over the drift, ≤ 0) and predicts the scored held-out samples
     at least as well (its held-out RMS ``heldout_step`` ≤ the drift's ``heldout_drift``, m):
     :data:`SLIP_ALIKE`. A slip leaves the level after it where it is; a drift that turns once in the
     training part (a random walk) goes on wandering after it, and a step then predicts the held-out

@@ -47,9 +47,8 @@ from afmsim.reproducible import single_blas_thread
 
 from ..engine import Front, Rules, attribute, conclude, effect_lines, ratio_text, rms, verdict_text
 from .alike import (RATE_WIDTH_ALIKE, RATE_WIDTH_COMPETITOR, SENSITIVITY_ALIKE, SLIP_ALIKE, fast_relaxation,
-                    fast_share, gain_fits_as_well, rate_width_fits_as_well, rate_width_over_lag_delta_bic,
-                    scales_with_displacement, slip_instant, step_over_drift_delta_bic, steps_in_time,
-                    without_ringing)
+                    fast_share, gain_fits_as_well, rate_width_fits_as_well, rival_over_term_delta_bic,
+                    scales_with_displacement, slip_instant, steps_in_time, without_ringing)
 from .localise import localise
 from .coupling import coupling_output, coupling_text
 from .minor_loop import minor_loop_law
@@ -122,10 +121,10 @@ class LoopFront(Front):
         self.rec, self.design, self.held, self.kind = rec, design, held, baseline
         self._fits: dict[tuple, FittedModel] = {}
         #: Training ΔBIC of the rate-dependent width over the last dynamics term without ringing judged by
-        #: :meth:`alike_outside` (:func:`.alike.rate_width_over_lag_delta_bic`; None before any)
+        #: :meth:`alike_outside` (:func:`.alike.rival_over_term_delta_bic`; None before any)
         self.lag_rival: float | None = None
         #: The step in time against the last drift judged by :meth:`alike_outside`: its training ΔBIC
-        #: over the drift (:func:`.alike.step_over_drift_delta_bic`), instant (s), size (m) and the
+        #: over the drift (:func:`.alike.rival_over_term_delta_bic`), instant (s), size (m) and the
         #: held-out RMS (m) of both (None before any)
         self.step_rival: dict | None = None
 
@@ -173,7 +172,7 @@ class LoopFront(Front):
                 return None
             base = tuple(e for e in fitted.spec.effects if e != "dynamics")
             without, rate = self.fit(base), self.fit(base + (RATE_WIDTH_COMPETITOR,))
-            self.lag_rival = rate_width_over_lag_delta_bic(
+            self.lag_rival = rival_over_term_delta_bic(
                 self.train_residual(without), self.train_residual(fitted), self.train_residual(rate),
                 fitted.n_params - without.n_params, rate.n_params - without.n_params)
             return RATE_WIDTH_ALIKE if rate_width_fits_as_well(self.lag_rival) else None
@@ -191,7 +190,7 @@ class LoopFront(Front):
             without = self.fit(base)
             at = slip_instant(d.t, self.rec.x, without.prediction, displacement, d.train)
             step = fit_model(d, ModelSpec(kind=self.kind, effects=base, slip_at_s=at))
-            delta = step_over_drift_delta_bic(self.train_residual(without), self.train_residual(fitted),
+            delta = rival_over_term_delta_bic(self.train_residual(without), self.train_residual(fitted),
                                               self.train_residual(step), fitted.n_params - without.n_params,
                                               step.n_params - without.n_params)
             self.step_rival = {"step_delta_bic": round(float(delta), 1), "step_at_s": round(at, 3),

@@ -172,7 +172,7 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: drive never rings, scanned by its inertia (:func:`.model.scan_resonance`; prompted by the
 #: resonances under sines that 55001–55003 missed, measured on its spent records and the
 #: rate-width distractors of 47001–55003); 57001–57003 first for a drift that a step in time fits as
-#: well, withheld as a slip (:func:`.alike.step_over_drift_delta_bic`; prompted by the slip 56001/28
+#: well, withheld as a slip (:func:`.alike.steps_in_time`; prompted by the slip 56001/28
 #: explained as a drift, measured on the spent drift, slip, gain-change and null records of 44001–56003).
 FRESH_SEEDS = (57001, 57002, 57003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
