@@ -1293,7 +1293,8 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
     params: dict = {}
     # + β, γ, n; + the placed thresholds
     n_params = hyst_cols.shape[1] + extra.shape[1] + (3 if kind == "bouc_wen" else 0) + \
-        (d.sharp_grid["levels"].size if kind == "sharp" else 0) + (1 if spec.slip_at_s is not None else 0)  # the instant
+        (d.sharp_grid["levels"].size if kind == "sharp" else 0) + \
+        (1 if spec.slip_at_s is not None else 0)  # a slip's instant (its height is a column)
 
     fitted = _LagFits(d, hyst_cols, smooth, n_free_h, extra, creep="creep" in eff)
 
