@@ -173,8 +173,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: resonances under sines that 55001–55003 missed, measured on its spent records and the
 #: rate-width distractors of 47001–55003); 57001–57003 first for a drift that a step in time fits as
 #: well, withheld as a slip (:func:`.alike.steps_in_time`; prompted by the slip 56001/28
-#: explained as a drift, measured on the spent drift, slip, gain-change and null records of 44001–56003).
-FRESH_SEEDS = (57001, 57002, 57003)
+#: explained as a drift, measured on the spent drift, slip, gain-change and null records of 44001–56003);
+#: 58001–58003 a second fresh set of the same method (no change since 57001–57003; a probe of the
+#: sixteenth session was not taken).
+FRESH_SEEDS = (58001, 58002, 58003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
