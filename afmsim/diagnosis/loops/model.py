@@ -1093,6 +1093,43 @@ class Design:
         return self._hyst[kind]
 
 
+@dataclass(frozen=True)
+class TrainingRows:
+    """The training rows of a fit's columns, each column scaled to unit RMS on them (``blocks``:
+    one array per block of columns, ``scale``), their Gram matrix ``gram`` and which columns move
+    on them (``moves``: the others cannot be told from the offset) — the part of
+    :func:`solve_weights` that grows with the record.
+
+    :meth:`of` masks each block of columns on its own (no full-length copy of the joined columns). A
+    fit that re-solves with the same columns and a new block after them (the creep fit's
+    alternation: the same filtered hysteresis columns, a new relaxation bank, four times a lag)
+    builds the fixed part once, and :meth:`appended` computes only the new block's products."""
+
+    blocks: tuple
+    scale: np.ndarray
+    gram: np.ndarray
+    moves: np.ndarray
+
+    @classmethod
+    def of(cls, blocks, mask) -> TrainingRows:
+        rows = np.hstack([np.asarray(b)[mask] for b in blocks])
+        scale = np.sqrt(np.mean(rows**2, axis=0))
+        scale[scale == 0] = 1.0
+        rows /= scale
+        return cls((rows,), scale, rows.T @ rows, np.std(rows, axis=0) > 1e-6)
+
+    def appended(self, blocks, mask) -> TrainingRows:
+        """These rows with the columns of ``blocks`` after them."""
+        new = TrainingRows.of(blocks, mask)
+        cross = np.vstack([b.T @ new.blocks[0] for b in self.blocks])
+        return TrainingRows(self.blocks + new.blocks, np.r_[self.scale, new.scale],
+                            np.block([[self.gram, cross], [cross.T, new.gram]]), np.r_[self.moves, new.moves])
+
+    def products(self, target) -> np.ndarray:
+        """Aᵀ·``target`` (``target``: the training samples) for the scaled columns A."""
+        return np.concatenate([b.T @ target for b in self.blocks])
+
+
 def solve_weights(cols_free, cols_pos, target, mask, smooth=None, smoothing: float = SMOOTHING, with_df: bool = False):
     """min ‖[F P]w − x‖² + prior on ``mask`` with w_P ≥ 0; returns (weights_free, weights_pos).
 
@@ -1112,26 +1149,32 @@ def solve_weights(cols_free, cols_pos, target, mask, smooth=None, smoothing: flo
     positive ones, ``tr((AₛᵀAₛ + prior)⁻¹ AₛᵀAₛ)``: a plain least-squares fit's column count,
     less what the prior and the ridge shrink) — the df of :meth:`Design.choose_family`'s GCV.
     """
-    a = np.hstack([cols_free, cols_pos])[mask]
+    w = solve_training_rows(TrainingRows.of((cols_free, cols_pos), mask), cols_free.shape[1], target[mask],
+                            smooth=smooth, smoothing=smoothing, with_df=with_df)
     nf = cols_free.shape[1]
-    m = a.shape[0]
-    scale = np.sqrt(np.mean(a**2, axis=0))
-    scale[scale == 0] = 1.0
-    a = a / scale
+    return (w[0][:nf], w[0][nf:], w[1]) if with_df else (w[:nf], w[nf:])
+
+
+def solve_training_rows(rows: TrainingRows, nf: int, target, smooth=None, smoothing: float = SMOOTHING, with_df: bool = False):
+    """:func:`solve_weights` on prepared :class:`TrainingRows` (their first ``nf`` columns free, the
+    rest non-negative; ``target``: the training samples): the weights of every column, and with
+    ``with_df`` the pair ``(weights, df)``."""
+    m = target.size
+    scale = rows.scale
     k = smooth.shape[1] if smooth is not None else 0
     # without a prior, columns that never move on the training part are indistinguishable from the
     # offset: their weights would be arbitrary (and their held-out prediction too), so they are fixed
     # at 0; the smoothness prior sets them from their neighbours instead
-    keep = np.r_[np.ones(nf + k, dtype=bool), np.std(a[:, nf + k:], axis=0) > 1e-6]
-    ak = a[:, keep]
-    g = ak.T @ ak
+    keep = np.r_[np.ones(nf + k, dtype=bool), rows.moves[nf + k:]]
+    data = rows.gram[np.ix_(keep, keep)]
+    g = data.copy()
     diag = RIDGE * m * np.r_[np.zeros(nf + k), np.ones(int(keep[nf + k:].sum()))]
     if k:
         ds = smooth / scale[nf:nf + k]
         g[nf:nf + k, nf:nf + k] += smoothing * m * np.mean(scale[nf:nf + k] ** 2) * (ds.T @ ds)
         diag[nf:nf + k] = 1e-9 * m
     g[np.diag_indices_from(g)] += diag + 1e-12 * np.trace(g) / g.shape[0]
-    h = ak.T @ target[mask]
+    h = rows.products(target)[keep]
     wk = nnls_gram(g, h, nf)  # a certified bulk active set; Lawson–Hanson where it does not settle
     if wk is None:
         r = np.linalg.cholesky(g).T  # RᵀR = AᵀA + prior
@@ -1139,15 +1182,13 @@ def solve_weights(cols_free, cols_pos, target, mask, smooth=None, smoothing: flo
         big = np.hstack([r[:, :nf], -r[:, :nf], r[:, nf:]])
         z, _ = nnls(big, b, maxiter=50 * big.shape[1])
         wk = np.r_[z[:nf] - z[nf:2 * nf], z[2 * nf:]]
-    w = np.zeros(a.shape[1])
+    w = np.zeros(scale.size)
     w[keep] = wk
     w /= scale
     if with_df:
         active = np.r_[np.ones(nf, dtype=bool), wk[nf:] > 0]
-        data = (ak.T @ ak)[np.ix_(active, active)]
-        df = float(np.trace(np.linalg.solve(g[np.ix_(active, active)], data)))
-        return w[:nf], w[nf:], df
-    return w[:nf], w[nf:]
+        return w, float(np.trace(np.linalg.solve(g[np.ix_(active, active)], data[np.ix_(active, active)])))
+    return w
 
 
 def estimate_resonance(x, prediction, train, dt) -> tuple[float, float] | None:
@@ -1230,28 +1271,42 @@ class _LagFits:
         """Mean squared training residual (m²) of the fit with ``lag``."""
         return float(np.mean((self(lag)[0] - self.x)[self.train] ** 2))
 
-    def solve(self, lag, creep_basis=None):
-        """One least-squares fit with the lag's filters applied to every column (creep bank included)."""
+    def solve(self, lag, creep_basis=None, fixed=None):
+        """One least-squares fit with the lag's filters applied to every column (creep bank
+        included); returns ``(prediction, free weights, positive weights, hysteresis part, fixed)``.
+        ``fixed``: what an earlier solve with this lag returned last, its filtered hysteresis and
+        effect columns and their :class:`TrainingRows` (the same for every creep bank)."""
         d, nf = self.d, self.n_free_h
-        cols = self.hyst_cols if creep_basis is None else np.hstack([self.hyst_cols, creep_basis])
-        for b, a in dynamics_filters(lag, d.dt) if lag is not None else []:
-            cols = _filt(b, a, cols)
-        free = np.hstack([cols[:, :nf], self.extra])
-        pos = cols[:, nf:]
-        wf, wp = solve_weights(free, pos, self.x, self.train, smooth=self.smooth, smoothing=d.smoothing)
+        filters = dynamics_filters(lag, d.dt) if lag is not None else []
+        if fixed is None:
+            cols = self.hyst_cols
+            for b, a in filters:
+                cols = _filt(b, a, cols)
+            free, pos = np.hstack([cols[:, :nf], self.extra]), cols[:, nf:]
+            fixed = (free, pos, TrainingRows.of((free, pos), self.train))
+        free, pos, rows = fixed
+        if creep_basis is not None:
+            for b, a in filters:
+                creep_basis = _filt(b, a, creep_basis)
+            rows = rows.appended((creep_basis,), self.train)
+        w = solve_training_rows(rows, free.shape[1], self.x[self.train], smooth=self.smooth, smoothing=d.smoothing)
+        wf, wp = w[:free.shape[1]], w[free.shape[1]:]
+        prediction = free @ wf + pos @ wp[:pos.shape[1]]
+        if creep_basis is not None:
+            prediction += creep_basis @ wp[pos.shape[1]:]
         hyst_part = self.hyst_cols[:, :nf] @ wf[:nf] + self.hyst_cols[:, nf:] @ wp[:self.n_pos_h]
-        return free @ wf + pos @ wp, wf, wp, hyst_part
+        return prediction, wf, wp, hyst_part, fixed
 
     def fit(self, lag):
         """The fit with the lag; with the creep bank, alternated three times with the hysteresis
         (the bank relaxes the fitted hysteresis part: bilinear)."""
-        pred, wf, wp, hpart = self.solve(lag)
+        pred, wf, wp, hpart, fixed = self.solve(lag)
         if not self.creep:
             return pred, wf, wp, hpart, None
         taus = creep_taus(self.d.dt, self.d.span_train)
         for _ in range(3):
             basis = np.column_stack([_filt(*lag_filter(tau, self.d.dt), hpart[:, None])[:, 0] - hpart for tau in taus])
-            pred, wf, wp, hpart = self.solve(lag, basis)
+            pred, wf, wp, hpart, _ = self.solve(lag, basis, fixed)
         return pred, wf, wp, hpart, (wp[self.n_pos_h:], taus)
 
 
