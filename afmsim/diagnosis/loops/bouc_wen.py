@@ -194,6 +194,10 @@ def fit_bouc_wen_shape(u, block: int, free: np.ndarray, x: np.ndarray, mask: np.
     column) and ``extra`` free columns come on top (drift, cross-coupling), so that the shape is
     fitted jointly with the effects instead of absorbing them."""
     extra = np.empty((x.size, 0)) if extra is None else extra
+    # the law, its backbone and every transform are causal: the samples after the last training one
+    # never enter the fit (the same fit, to the last bit, at the cost of the samples up to it)
+    rows = int(np.flatnonzero(mask)[-1]) + 1
+    u, free, x, mask, extra = u[:rows * block], free[:rows], x[:rows], mask[:rows], extra[:rows]
     head = np.hstack([free, backbone_columns(u, block)])  # the columns no shape changes
     target = x[mask]
     untransformed = _MaskedColumns(head, extra, mask) if transform is None else None
