@@ -175,8 +175,10 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: well, withheld as a slip (:func:`.alike.steps_in_time`; prompted by the slip 56001/28
 #: explained as a drift, measured on the spent drift, slip, gain-change and null records of 44001–56003);
 #: 58001–58003 a second fresh set of the same method (no change since 57001–57003; a probe of the
-#: sixteenth session was not taken).
-FRESH_SEEDS = (58001, 58002, 58003)
+#: sixteenth session was not taken); 59001–59003 a third, after the seventeenth session's speed-ups
+#: (the creep alternation's Gram matrix once a lag, the Bouc–Wen shape search up to the last training
+#: sample: the weights equal to rounding, the shape search bit-identical; its probe not taken).
+FRESH_SEEDS = (59001, 59002, 59003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
