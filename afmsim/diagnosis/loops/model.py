@@ -1149,10 +1149,13 @@ def solve_weights(cols_free, cols_pos, target, mask, smooth=None, smoothing: flo
     positive ones, ``tr((AₛᵀAₛ + prior)⁻¹ AₛᵀAₛ)``: a plain least-squares fit's column count,
     less what the prior and the ridge shrink) — the df of :meth:`Design.choose_family`'s GCV.
     """
-    w = solve_training_rows(TrainingRows.of((cols_free, cols_pos), mask), cols_free.shape[1], target[mask],
-                            smooth=smooth, smoothing=smoothing, with_df=with_df)
     nf = cols_free.shape[1]
-    return (w[0][:nf], w[0][nf:], w[1]) if with_df else (w[:nf], w[nf:])
+    solved = solve_training_rows(TrainingRows.of((cols_free, cols_pos), mask), nf, target[mask],
+                                 smooth=smooth, smoothing=smoothing, with_df=with_df)
+    if with_df:
+        w, df = solved
+        return w[:nf], w[nf:], df
+    return solved[:nf], solved[nf:]
 
 
 def solve_training_rows(rows: TrainingRows, nf: int, target, smooth=None, smoothing: float = SMOOTHING, with_df: bool = False):
