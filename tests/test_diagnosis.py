@@ -81,7 +81,8 @@ def test_dynamics_lag_is_the_plants_low_frequency_delay(fs, f_amp):
     order; here the width's play columns fit the training part worse, so the term is named (the
     25 Hz pole's 6.4 ms beyond the plausible 5 ms, and its 62.5 Hz mode below the plausible 100 Hz:
     reported as implausible), and no other candidate takes its shrink (creep took it at an
-    implausible 0.08–0.19 %/decade once)."""
+    implausible 0.08–0.19 %/decade once; run again without the implausible lag, a creep that
+    relaxes within 0.1 s passes and is reported, not named)."""
     rng = np.random.default_rng(17)
     t, v = excitation("sines", fs, 10.0, rng)
     axis = _plant()
@@ -94,7 +95,7 @@ def test_dynamics_lag_is_the_plants_low_frequency_delay(fs, f_amp):
         assert dyn["params"]["resonance_seen"] == "inertia"
         assert dyn["params"]["resonance_hz"] == pytest.approx(min(2.5 * f_amp, 0.3 * fs), rel=0.25)
     assert "alike_outside" not in dyn and dyn["heldout_shrink"] > 0.9, summary
-    assert rep["verdict"] == ["dynamics"] and not rep["caveats"], summary
+    assert rep["verdict"] == ["dynamics"] and not [c for c in rep["caveats"] if not c.get("without_implausible")], summary
     if true_lag <= 5e-3:   # 60 Hz pole: a finding, which takes the gap
         assert rep["unexplained"]["share_left"] < 0.1 and not rep["implausible"], summary
     else:                  # 25 Hz pole: beyond the plausible lag (5 ms), reported as such, not a finding

@@ -42,8 +42,10 @@ def _walk_scaled_to_its_least_squares_rate(t, rate, form, rng):
 def test_a_random_walk_is_named_drift_once_its_curvature_is_not_extrapolated(monkeypatch):
     """Spent open-world record 36003/2: a 40 nm/min smooth random walk on a scattered-Preisach stage
     under band-limited noise, 7.3× the noise held out. The parabola carried over the held-out part
-    shrinks the gap by 22 % and fails the test (ΔBIC −2.5); continued at its final slope, 35 % and
-    drift is named. The record as the suite then made it (its walk scaled to a least-squares rate).
+    shrinks the gap by 22 % (ΔBIC −2.5 with its parameters charged); continued at its final slope, by
+    35 % (−8.7). Both pass the plain held-out likelihood ratio, so the continued form is pinned by what
+    it forecasts: a larger share of the held-out gap. The record as the suite then made it (its walk
+    scaled to a least-squares rate).
     The walk turns once in the training part, and a step there fits that part better than the drift
     (training ΔBIC −291 against it); it predicts the held-out part worse (27.1 nm RMS against the
     drift's 17.9 nm), so the drift is not taken for a slip (:func:`.alike.steps_in_time`)."""
@@ -57,7 +59,7 @@ def test_a_random_walk_is_named_drift_once_its_curvature_is_not_extrapolated(mon
     assert continued["final"]["gap_to_noise"] < 0.7 * continued["baseline"]["gap_to_noise"]
     monkeypatch.setattr(model, "drift_curvature_column", lambda tn, train: tn**2)
     parabola, _, _ = diagnose_record(rec, candidates=["drift"])
-    assert parabola["verdict"] == [] and parabola["status"] == "unexplained"
+    assert parabola["effects"][0]["heldout_shrink"] < 0.7 * continued["effects"][0]["heldout_shrink"]
 
 
 def _triangle_record(seed):

@@ -3,8 +3,9 @@
 :meth:`.attribute.LoopFront.alike_outside` asks this of every candidate that passes the engine's
 tests; a term that something outside the set can stand in for is reported and not named
 (:func:`afmsim.diagnosis.engine.attribute`; docs/diagnosis.md, "A lag alone is not named",
-"A drift that scales with the displacement is not named" and "A drift that a step in time fits as
-well is not named").
+"A drift that scales with the displacement is not named", "A drift that a step in time fits as
+well is not named" and "The held-out test on the plain likelihood ratio, and a creep a drift fits
+as well is not named").
 
 * a ``dynamics`` term that shows no ringing — a lag alone, or a lag with a mode seen only by its
   inertia on a drive far below it (:func:`without_ringing`) — that a loop width
@@ -39,7 +40,13 @@ well is not named").
   scales with the displacement itself and the drift's test cannot tell it from a gain change;
   instead the two explanations compete for the residual of the model without the creep — where
   the displacement times smooth functions of time fits it at least as well as the creep's term
-  does, the record does not show creep.
+  does, the record does not show creep;
+* a ``creep``, on a model without a drift, that a drift fits and predicts as well
+  (:func:`drifts_in_time`, :data:`DRIFT_ALIKE`): the drift is a candidate, but where it is not named
+  (an implausible rate) a bank of slow relaxations can follow it within the record; the two compete
+  as the slip and the drift do (training ΔBIC, each refitted with the hysteresis, and held-out RMS).
+  A log-time creep keeps slowing down, so a drift carried on at its final slope overshoots it held
+  out.
 """
 
 from __future__ import annotations
@@ -55,12 +62,13 @@ __all__ = ["RATE_WIDTH_ALIKE", "SENSITIVITY_ALIKE", "SENSITIVITY_DELTA_BIC", "SM
            "GAIN_DEGREE", "RATE_WIDTH_COMPETITOR", "without_ringing", "rival_over_term_delta_bic",
            "rate_width_fits_as_well", "scales_with_displacement", "sensitivity_delta_bic", "fast_share",
            "fast_relaxation", "gain_over_creep_delta_bic", "gain_fits_as_well", "SLIP_ALIKE", "STEP_INSTANTS",
-           "slip_instant", "steps_in_time"]
+           "slip_instant", "steps_in_time", "DRIFT_ALIKE", "drifts_in_time"]
 
 RATE_WIDTH_ALIKE = "a loop width that grows with the drive rate (rate-dependent hysteresis, not a candidate)"
 SENSITIVITY_ALIKE = ("a change that scales with the displacement, as a sensor sensitivity that changes during the "
                      "record gives (not a candidate)")
 SLIP_ALIKE = "a step in the displacement at one instant, as a mechanical slip gives (not a candidate)"
+DRIFT_ALIKE = "a drift in time, which the record cannot tell from a creep this slow"
 #: ΔBIC (decorrelated samples) the displacement-scaled columns must reach for a drift to read as a
 #: sensitivity change: "very strong" evidence on Kass & Raftery's scale (J. Am. Stat. Assoc. 90 (1995)
 #: 773), not the engine's −6: the test's first form (no smooth term, the prediction as the
@@ -183,6 +191,16 @@ def steps_in_time(delta_bic: float, heldout_step: float, heldout_drift: float) -
     training part (a random walk) goes on wandering after it, and a step then predicts the held-out
     part worse than the drift does."""
     return delta_bic <= 0.0 and heldout_step <= heldout_drift
+
+
+def drifts_in_time(delta_bic: float, heldout_drift: float, heldout_creep: float) -> bool:
+    """True where a drift fits the training part at least as well as the creep (``delta_bic``:
+    :func:`rival_over_term_delta_bic` of the drift over the creep, ≤ 0) and predicts the scored
+    held-out samples at least as well (its held-out RMS ``heldout_drift`` ≤ the creep's
+    ``heldout_creep``, m): :data:`DRIFT_ALIKE`. The drift is a candidate of its own; this matters
+    where it was not named (implausible, or failing its test), so that a creep bank does not stand
+    in for it: a relaxation slower than the record is a ramp in time to every sample of it."""
+    return delta_bic <= 0.0 and heldout_drift <= heldout_creep
 
 
 def scales_with_displacement(t, x, prediction, displacement, train, scored) -> bool:
