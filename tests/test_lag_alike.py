@@ -4,11 +4,13 @@
 model.Design.rate_width_columns): named where it fits the training part better, reported and not
 named where the width does as well."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from afmsim.diagnosis.loops.alike import RATE_WIDTH_ALIKE, rate_width_fits_as_well, rival_over_term_delta_bic
-from afmsim.diagnosis.loops.attribute import diagnose_record
+from afmsim.diagnosis.loops.attribute import _caveat_line, _note_rival, _withheld, diagnose_record
 from afmsim.diagnosis.loops.distractors import _play_varying
 from afmsim.diagnosis.loops.model import (RATE_WIDTH_RADII, RESONANCE_SCAN_POINTS, RESONANCE_SCAN_ZETAS, Design,
                                           _rate_play_columns, resonance_band, scan_resonance)
@@ -144,3 +146,17 @@ def test_a_mode_seen_only_by_its_inertia_standing_in_for_a_rate_width_is_reporte
     assert caveat["kind"] == "lag_only" and caveat["resonance_hz"] is not None
     assert caveat["alike"] == RATE_WIDTH_ALIKE and caveat["rate_width_delta_bic"] < 0
     assert "Not named: dynamics as a lag with a mode seen only by its inertia" in summary
+
+
+def test_a_lag_withheld_without_the_implausible_terms_is_reported_with_its_rival():
+    """A lag withheld in the attribution run again without the implausible terms
+    (``engine.conclude``'s ``withheld_without_implausible``) gets its rival's training ΔBIC as one
+    withheld in the first run does, and its caveat line says which run judged it."""
+    evaluation = {"name": "dynamics", "significant": False, "alike_outside": RATE_WIDTH_ALIKE,
+                  "heldout_shrink": 0.4, "params": {"lag_time_constant_s": 2e-5}}
+    _note_rival(evaluation, SimpleNamespace(lag_rival=-12.3, step_rival=None, drift_rival=None))
+    (caveat,) = _withheld([evaluation])
+    assert caveat["kind"] == "lag_only" and caveat["rate_width_delta_bic"] == -12.3
+    line = _caveat_line({**caveat, "without_implausible": True})
+    assert line.startswith("Not named (with the implausible terms left out): dynamics as a lag alone")
+    assert "(ΔBIC -12 against the lag)" in line

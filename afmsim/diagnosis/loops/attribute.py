@@ -324,11 +324,9 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
     _read_prior_dependence(outcome["unexplained"], spread_to_noise, front.kind)
     _read_untrained_split(outcome["unexplained"], split)
     rest = rest_noise(rec, sigma)
-    _note_lag_rival(att.evaluations.get("dynamics"), front.lag_rival)
-    _note_step_rival(att.evaluations.get("drift"), front.step_rival)
     rerun = outcome["withheld_without_implausible"]
-    for creep in [att.evaluations.get("creep")] + [e for e in rerun if e["name"] == "creep"]:
-        _note_drift_rival(creep, front.drift_rival)
+    for evaluation in [att.evaluations.get(c) for c in ("dynamics", "drift", "creep")] + rerun:
+        _note_rival(evaluation, front)
     report = {
         "record": {"source": rec.source, "samples": n, "sample_interval_s": rec.dt, "decimation": rec.decimation,
                    "duration_s": float(rec.t[-1] - rec.t[0]),
@@ -460,6 +458,21 @@ def loop_summary(rep: dict) -> str:
     if "minor_loop_law" in rep:
         lines.append("Minor-loop law: " + rep["minor_loop_law"]["note"])
     return "\n".join(lines)
+
+
+def _note_rival(evaluation: dict | None, front: LoopFront) -> None:
+    """Give a candidate's evaluation what its rival from :meth:`LoopFront.alike_outside` scored
+    (:func:`_note_lag_rival`, :func:`_note_step_rival`, :func:`_note_drift_rival`): the entries its
+    ``caveats`` line reads, for the first attribution and the one run again without the implausible
+    terms alike."""
+    if evaluation is None:
+        return
+    if evaluation["name"] == "dynamics":
+        _note_lag_rival(evaluation, front.lag_rival)
+    elif evaluation["name"] == "drift":
+        _note_step_rival(evaluation, front.step_rival)
+    elif evaluation["name"] == "creep":
+        _note_drift_rival(evaluation, front.drift_rival)
 
 
 def _note_lag_rival(dynamics: dict | None, rival: float | None) -> None:
