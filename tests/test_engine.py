@@ -6,7 +6,7 @@ A toy front (a sine baseline, a linear drift candidate) makes every status reach
 import numpy as np
 import pytest
 
-from afmsim.diagnosis.engine import Front, Rules, attribute, conclude, rms, significance, verdict_text
+from afmsim.diagnosis.engine import Front, Rules, attribute, conclude, effect_lines, rms, significance, verdict_text
 from afmsim.diagnosis.plausible import PLAUSIBLE, implausible
 
 N = 3000
@@ -372,3 +372,22 @@ def test_a_term_alike_a_non_candidate_is_not_named_but_lends_no_candidate_its_sh
     assert out["status"] == "partly_explained" and out["unexplained"]["gap_to_noise"] > 10.0
     assert rms(front.heldout_residual(att.final)) == pytest.approx(
         rms(front.heldout_residual(front.fit(("drift",)))))
+
+
+def test_without_the_penalty_the_held_out_test_reads_the_plain_likelihood_ratio():
+    """A candidate that takes 10 % off a white held-out residual twice the noise (200 samples, every
+    block improved): n·ln(RSS₁/RSS₀) = −42 passes; charged for 10 parameters (10·ln 200 = 53) its
+    ΔBIC is +10.8 and it fails. The summary line shows the likelihood ratio only where it decided."""
+    r0 = 2 * SIGMA * np.random.default_rng(4).standard_normal(200)
+    plain = significance(r0, 0.9 * r0, SIGMA, 10, penalised=False)
+    charged = significance(r0, 0.9 * r0, SIGMA, 10)
+    assert plain["n_eff"] == charged["n_eff"] == 200
+    assert plain["likelihood_ratio"] == pytest.approx(200 * np.log(0.81), rel=1e-9)
+    assert plain["delta_bic"] == pytest.approx(plain["likelihood_ratio"] + 10 * np.log(200), rel=1e-9)
+    assert plain["significant"] and not charged["significant"]
+    entry = {"name": "drift", "heldout_shrink": 0.1, "significant": True, "params": {}, "found_with": ["creep"]}
+    (line,) = effect_lines([{**entry, "test": plain}])
+    assert "ΔBIC +10.8 (likelihood ratio -42.1)  SIGNIFICANT" in line
+    assert "[taken as a pair with creep: neither passed alone]" in line
+    (line,) = effect_lines([{**entry, "test": charged}])
+    assert "likelihood ratio" not in line

@@ -126,7 +126,8 @@ def significance(r0, r1, sigma, k_extra, *, n_blocks=10, gap_weighted_blocks=Fal
     decorrelation length of ``r0``, so autocorrelated model error is not independent evidence) with
     ``k_extra`` parameters as penalty — or, ``penalised`` False (:attr:`Rules.heldout_penalty`), the
     plain likelihood ratio ``n_eff·ln(RSS₁/RSS₀)`` < −6 (``likelihood_ratio``; ``delta_bic`` is
-    reported with the penalty either way and ranks the candidates that pass); (b) ≥ 70 % of
+    reported with the penalty either way and ranks the candidates that pass; ``penalised`` says
+    which decided); (b) ≥ 70 % of
     ``n_blocks`` contiguous held-out blocks improve;
     (c) the RMS drops by ≥ 3 % and by ≥ 15 % of the part of the current gap above the noise σ.
     With ``gap_weighted_blocks``, (b) weighs each block's vote by its share of the current gap
@@ -158,7 +159,7 @@ def significance(r0, r1, sigma, k_extra, *, n_blocks=10, gap_weighted_blocks=Fal
     ok = bool((dbic if penalised else ratio) < -6 and frac_pos >= 0.7 and step >= 0.03 and excess > 0
               and gain >= 0.15 * excess)
     return {"step_shrink": float(step), "delta_bic": float(dbic), "likelihood_ratio": float(ratio),
-            "n_eff": float(n_eff),
+            "penalised": bool(penalised), "n_eff": float(n_eff),
             "blocks_improved": frac_pos, "gain_over_excess": float(gain / excess) if excess > 0 else 0.0,
             "significant": ok}
 
@@ -514,7 +515,9 @@ def _fmt(p: dict) -> str:
 
 
 def effect_lines(effects: list[dict]) -> list[str]:
-    """One summary line per evaluated candidate."""
+    """One summary line per evaluated candidate: its held-out shrink, ΔBIC (and the plain likelihood
+    ratio where that decided the test, :attr:`Rules.heldout_penalty`), whether it passed, its
+    parameters and notes (taken as a pair, implausible, withheld)."""
     lines = []
     for e in effects:
         notes = "".join(f"  [{label} {', '.join(e[key])}]" for key, label in
@@ -524,11 +527,15 @@ def effect_lines(effects: list[dict]) -> list[str]:
             notes += "  [IMPLAUSIBLE value]"
         elif e.get("finding") is False:
             notes += "  [not significant without the implausible terms]"
+        if e.get("found_with"):
+            notes += f"  [taken as a pair with {', '.join(e['found_with'])}: neither passed alone]"
         if e.get("alike_outside"):
             notes += f"  [passes the test, but not named: {e['alike_outside']} does the same]"
         if e.get("gap_within_noise"):
             notes += f"  [passes the test, but shrinks a gap already within {HONEST_FACTOR:g}× the noise too little to name]"
-        lines.append(f"  {e['name']:<15} shrink {e['heldout_shrink']:+.1%}  ΔBIC {e['test']['delta_bic']:+.1f}  "
+        test = e["test"]
+        ratio = f" (likelihood ratio {test['likelihood_ratio']:+.1f})" if test.get("penalised") is False else ""
+        lines.append(f"  {e['name']:<15} shrink {e['heldout_shrink']:+.1%}  ΔBIC {test['delta_bic']:+.1f}{ratio}  "
                      f"{'SIGNIFICANT' if e['significant'] else 'not significant'}  {_fmt(e['params'])}{notes}")
     return lines
 
