@@ -461,44 +461,26 @@ def loop_summary(rep: dict) -> str:
 
 
 def _note_rival(evaluation: dict | None, front: LoopFront) -> None:
-    """Give a candidate's evaluation what its rival from :meth:`LoopFront.alike_outside` scored
-    (:func:`_note_lag_rival`, :func:`_note_step_rival`, :func:`_note_drift_rival`): the entries its
-    ``caveats`` line reads, for the first attribution and the one run again without the implausible
-    terms alike."""
+    """Give a candidate's evaluation what its rival from :meth:`LoopFront.alike_outside` scored, the
+    entries its ``caveats`` line reads (for the first attribution and the one run again without the
+    implausible terms alike; the last judgement is the deciding one: a withheld or named term is not
+    tried again): a dynamics term without ringing that was named or withheld, the training ΔBIC of
+    the rate-dependent width over it (``rate_width_delta_bic``); a drift withheld as a step in time
+    (:data:`.alike.SLIP_ALIKE`), the step's training ΔBIC over it, instant, size and the held-out RMS
+    of both; a creep withheld as a drift in time (:data:`.alike.DRIFT_ALIKE`), the drift's training
+    ΔBIC over it and the held-out RMS of both."""
     if evaluation is None:
         return
     if evaluation["name"] == "dynamics":
-        _note_lag_rival(evaluation, front.lag_rival)
-    elif evaluation["name"] == "drift":
-        _note_step_rival(evaluation, front.step_rival)
-    elif evaluation["name"] == "creep":
-        _note_drift_rival(evaluation, front.drift_rival)
-
-
-def _note_lag_rival(dynamics: dict | None, rival: float | None) -> None:
-    """Give a dynamics term without ringing that was named or withheld (:meth:`LoopFront.alike_outside`) the
-    training ΔBIC of the rate-dependent width over it, ``rate_width_delta_bic`` (the last judgement
-    is the deciding one: a withheld or named term is not tried again)."""
-    if dynamics is None or rival is None or not without_ringing(dynamics.get("alike_params", dynamics.get("params"))):
+        judged = evaluation.get("significant") or evaluation.get("alike_outside")
+        if front.lag_rival is not None and judged and \
+                without_ringing(evaluation.get("alike_params", evaluation.get("params"))):
+            evaluation["rate_width_delta_bic"] = round(float(front.lag_rival), 1)
         return
-    if dynamics.get("significant") or dynamics.get("alike_outside"):
-        dynamics["rate_width_delta_bic"] = round(float(rival), 1)
-
-
-def _note_step_rival(drift: dict | None, rival: dict | None) -> None:
-    """Give a drift withheld as a step in time (:data:`.alike.SLIP_ALIKE`) the step's training ΔBIC
-    over it, instant, size and the held-out RMS of both (:meth:`LoopFront.alike_outside`)."""
-    if drift is None or rival is None or drift.get("alike_outside") != SLIP_ALIKE:
-        return
-    drift.update(rival)
-
-
-def _note_drift_rival(creep: dict | None, rival: dict | None) -> None:
-    """Give a creep withheld as a drift in time (:data:`.alike.DRIFT_ALIKE`) the drift's training ΔBIC
-    over it and the held-out RMS of both (:meth:`LoopFront.alike_outside`)."""
-    if creep is None or rival is None or creep.get("alike_outside") != DRIFT_ALIKE:
-        return
-    creep.update(rival)
+    alike, rival = {"drift": (SLIP_ALIKE, front.step_rival),
+                    "creep": (DRIFT_ALIKE, front.drift_rival)}.get(evaluation["name"], (None, None))
+    if rival is not None and evaluation.get("alike_outside") == alike:
+        evaluation.update(rival)
 
 
 def _lag_named_line(rep: dict) -> list[str]:
