@@ -262,14 +262,15 @@ def choose_split(rec: LoopRecord) -> tuple[np.ndarray, str]:
     :data:`MIN_BLOCK_SHARE` of its samples, the parts before and after it trained
     (``"interior_block"``); else the default with its fallback scoring
     (``"default_untrained"``). Only the drive decides (the relay states on the default 32-level
-    grid): the displacement, held out or not, is never looked at."""
+    grid, at :data:`.model.STATE_TOLERANCE`: the diagnosis may then score a stricter subset): the
+    displacement, held out or not, is never looked at."""
     def probe(train: np.ndarray) -> Design:
         return Design(rec.t, rec.v, rec.x, rec.y, train, n_levels=N_LEVELS, v_fine=rec.v_fine, family="preisach")
 
     default = probe(_training_part(rec.n, TRAIN_FRACTION))
     for fraction in (TRAIN_FRACTION, *LATER_SPLITS):
         d = default if fraction == TRAIN_FRACTION else probe(_training_part(rec.n, fraction))
-        scored, rule = d.scored()
+        scored, rule = d.scored(strict=False)
         if rule != "trained_states":
             continue
         if fraction == TRAIN_FRACTION:
@@ -280,7 +281,7 @@ def choose_split(rec: LoopRecord) -> tuple[np.ndarray, str]:
         block = _interior_block(rec, start, length)
         if not _inside_rest(default.v_min, default.v_max, block):  # per-sample extremes: mask-independent
             continue
-        scored, rule = probe(~block).scored()
+        scored, rule = probe(~block).scored(strict=False)
         if rule == "trained_states" and scored.sum() >= MIN_BLOCK_SHARE * block.sum():
             return ~block, "interior_block"
     return default.train, "default_untrained"
@@ -348,6 +349,7 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                       "tied_low_V": d.sharp_grid["tied"][0].tolist(), "tied_high_V": d.sharp_grid["tied"][1].tolist()},
                      "model_choice_scores": {str(k): v for k, v in d.choice_scores.items()},
                      "heldout_scoring": scoring, "drive_polarity": int(d.polarity),
+                     "heldout_state_tolerance": d.state_tolerance if scoring == "trained_states" else None,
                      "prior_spread_to_noise": None if spread_to_noise is None else round(spread_to_noise, 3),
                      "prior_dependent_share": round(float(np.mean(spread > sigma)), 4),
                      "travel": float(np.ptp(rec.x)), "modelled": list(modelled),
