@@ -181,8 +181,11 @@ DEVELOPMENT_SEEDS = (1, 2, 3, 4, 5, 6)
 #: 60001–60003 first for the held-out test on the plain likelihood ratio and a creep withheld where
 #: a drift fits and predicts as well (:func:`.alike.drifts_in_time`; prompted by the effects 57002/17,
 #: 57003/17 and 58001/12 that failed on the parameter charge alone, measured on every spent record of
-#: 57001–59003 and the nulls and distractors of 40001–40003 and 56001–56003).
-FRESH_SEEDS = (60001, 60002, 60003)
+#: 57001–59003 and the nulls and distractors of 40001–40003 and 56001–56003); 61001–61003 first for
+#: held-out scoring within the strict state tolerance (:data:`.model.STRICT_STATE_TOLERANCE`; prompted
+#: by the nulls under sines of 60001–60003 above 2×, measured on every spent record of 59001–60003
+#: and the nulls of 57001–58003).
+FRESH_SEEDS = (61001, 61002, 61003)
 TARGETS = {"effect_top1": 0.9, "null_false_attribution": 0.1, "distractor_false_attribution": 0.1,
            "null_gap_to_noise": HONEST_FACTOR}
 
