@@ -787,10 +787,10 @@ class Design:
         before = held & ~after_excursion(self.v, self.train, v_min=self.v_min, v_max=self.v_max)
         trained = before & self.within_range & over_record
         self.state_tolerance = STATE_TOLERANCE
-        strict_count = np.count_nonzero(trained & (untrained <= STRICT_STATE_TOLERANCE))
-        if strict and strict_count >= max(MIN_SCORED, STRICT_SHARE * np.count_nonzero(trained)):
-            trained &= untrained <= STRICT_STATE_TOLERANCE
-            self.state_tolerance = STRICT_STATE_TOLERANCE
+        if strict:
+            tight = trained & (untrained <= STRICT_STATE_TOLERANCE)
+            if tight.sum() >= max(MIN_SCORED, STRICT_SHARE * trained.sum()):
+                trained, self.state_tolerance = tight, STRICT_STATE_TOLERANCE
         strictly_before = held & ~after_excursion(self.v, self.train, 0.0, v_min=self.v_min, v_max=self.v_max)
         for rule, scored in (("trained_states", trained), ("before_excursion", strictly_before)):
             if scored.sum() >= MIN_SCORED:
