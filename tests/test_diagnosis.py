@@ -189,6 +189,22 @@ def test_spreadsheet_exports_load_like_the_plain_csv(tmp_path):
     assert "\n" not in str(info.value) and "junk.jpk" in str(info.value)
 
 
+def test_a_ragged_csv_is_refused_in_one_line_naming_the_row(tmp_path):
+    """A row with a column missing or one too many (a cut-off export): one line naming the first such
+    row by its line in the file (comment lines and the header counted) and how many more there are."""
+    t, v, x = _arrays()
+    rows = [f"{a:.10g},{b:.10g},{c:.10g}" for a, b, c in zip(t, v, x)]
+    rows[5] = rows[5].rsplit(",", 1)[0]
+    rows[9] += ",0"
+    path = tmp_path / "cut.csv"
+    path.write_text("\n".join(["# sensor 2 kHz", "t_s,v_V,x_m"] + rows) + "\n")
+    with pytest.raises(ValueError) as info:
+        load_record(path)
+    message = str(info.value)
+    assert "\n" not in message and "cut.csv" in message
+    assert "line 8 has 2 columns where the first data row has 3 (and 1 more such rows)" in message
+
+
 def test_instrument_exports_with_words_and_comment_lines_load(tmp_path):
     """Settings as comment lines before the header and quantities named in words ("Time (s)",
     "Drive voltage [V]", "Displacement in nm", "Position-Y (µm)"): the same SI record."""

@@ -111,11 +111,22 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     try:
         data = np.genfromtxt(path, delimiter=delimiter, skip_header=skipped + 1, dtype=np.float64, ndmin=2,
                              encoding="utf-8-sig")
-    except Exception as exc:  # pragma: no cover - numpy message varies
-        raise ValueError(f"record {path.name} is not numeric CSV: {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"record {path.name} is not numeric CSV: {_first_bad_row(str(exc))}") from None
     if data.ndim != 2 or data.shape[1] != len(names):
         raise ValueError(f"record {path.name}: rows do not match the {len(names)} header columns")
     return {si: data[:, k] * factor for si, (k, factor) in columns.items()}
+
+
+def _first_bad_row(message: str) -> str:
+    """One line from numpy's ``genfromtxt`` error: the first row it names (numpy lists every row whose
+    column count differs from the first data row's, "Line #4 (got 2 columns instead of 3)", file line
+    numbers, under a first line that names none), and how many more it names."""
+    rows = [line.strip() for line in message.splitlines() if line.strip().startswith("Line #")]
+    if not rows:
+        return message.strip().splitlines()[0] if message.strip() else "unreadable rows"
+    first = re.sub(r"^Line #(\d+) \(got (\d+) columns instead of (\d+)\)$", r"line \1 has \2 columns where the first data row has \3", rows[0])
+    return first + (f" (and {len(rows) - 1} more such rows)" if len(rows) > 1 else "")
 
 
 def _header_columns(file_name: str, names: list[str]) -> dict[str, tuple[int, float]]:
