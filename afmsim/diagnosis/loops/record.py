@@ -111,7 +111,7 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     try:
         data = np.genfromtxt(path, delimiter=delimiter, skip_header=skipped + 1, dtype=np.float64, ndmin=2,
                              encoding="utf-8-sig")
-    except ValueError as exc:
+    except Exception as exc:  # numpy raises ValueError for ragged rows; anything else stays one line too
         raise ValueError(f"record {path.name} is not numeric CSV: {_first_bad_row(str(exc))}") from None
     if data.ndim != 2 or data.shape[1] != len(names):
         raise ValueError(f"record {path.name}: rows do not match the {len(names)} header columns")
@@ -125,7 +125,8 @@ def _first_bad_row(message: str) -> str:
     rows = [line.strip() for line in message.splitlines() if line.strip().startswith("Line #")]
     if not rows:
         return message.strip().splitlines()[0] if message.strip() else "unreadable rows"
-    first = re.sub(r"^Line #(\d+) \(got (\d+) columns instead of (\d+)\)$", r"line \1 has \2 columns where the first data row has \3", rows[0])
+    first = re.sub(r"^Line #(\d+) \(got (\d+) columns instead of (\d+)\)$",
+                   r"line \1 has \2 columns where the first data row has \3", rows[0])
     return first + (f" (and {len(rows) - 1} more such rows)" if len(rows) > 1 else "")
 
 
