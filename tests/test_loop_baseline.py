@@ -856,15 +856,13 @@ def test_a_sensor_with_a_quadratic_calibration_error_is_still_a_rate_independent
     assert rep["status"] == "nothing_missing" and rep["verdict"] == []
 
 
-def _spent_record(seed: int, index: int, plant: str):
-    case = make_case(case_plan()[index], np.random.default_rng([seed, index]))
+def _spent_record(seed: int, index: int, plant: str, category: str | None = None):
+    """The record of open-world case ``index`` of ``seed`` (spent), checked to be of ``plant`` (and ``category``)."""
+    spec = case_plan()[index]
+    assert category is None or spec.category == category
+    case = make_case(spec, np.random.default_rng([seed, index]))
     assert case["plant"] == plant
     return load_record(case["columns"])
-
-
-def _spent_null(seed: int, index: int, plant: str):
-    assert case_plan()[index].category == "null"
-    return _spent_record(seed, index, plant)
 
 
 def test_the_first_samples_after_an_untrained_sine_peak_are_left_to_the_prior():
@@ -875,7 +873,7 @@ def test_the_first_samples_after_an_untrained_sine_peak_are_left_to_the_prior():
     STRICT_STATE_TOLERANCE the baseline fits within 2×, as a rate-independent stage must; scored
     within STATE_TOLERANCE it left 2.7×, and the samples between the two carry a residual several
     times that of the strict ones."""
-    rep, _, internals = diagnose_record(_spent_null(60001, 23, "generalised_pi"), candidates=[])
+    rep, _, internals = diagnose_record(_spent_record(60001, 23, "generalised_pi", "null"), candidates=[])
     d, held = internals["design"], internals["held"]
     assert rep["baseline"]["heldout_scoring"] == "trained_states"
     assert rep["baseline"]["heldout_state_tolerance"] == STRICT_STATE_TOLERANCE
