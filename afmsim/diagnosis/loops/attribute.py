@@ -51,7 +51,6 @@ from .alike import (DRIFT_ALIKE, RATE_WIDTH_ALIKE, RATE_WIDTH_COMPETITOR, SENSIT
                     rival_over_term_delta_bic, scales_with_displacement, slip_instant, steps_in_time, without_ringing)
 from .localise import localise
 from .coupling import coupling_output, coupling_text
-from .generalised_play import ENVELOPE_TERMS
 from .minor_loop import minor_loop_law
 from .model import N_LEVELS, Design, FittedModel, ModelSpec, fit_model
 from .record import LoopRecord, load_record
@@ -99,9 +98,7 @@ BLOCK_STARTS = (0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.15, 0.65, 0.1
 BLOCK_MARGIN = 0.01
 MIN_BLOCK_SHARE = 0.3
 BASELINE_NAMES = {"preisach": "relay Preisach grid (asymmetric)", "bouc_wen": "Bouc–Wen law (Duhem class)",
-                  "play": "fine play operators + cubic (asymmetric PI)",
-                  "generalised_play": "generalised play operators on fitted envelopes + cubic (generalised PI)",
-                  "symmetric": "play operators (symmetric PI)",
+                  "play": "fine play operators + cubic (asymmetric PI)", "symmetric": "play operators (symmetric PI)",
                   "dahl": "Dahl law (Duhem class)",
                   "sharp": "ideal relays on the record's own grid (discrete Preisach)"}
 #: effects live at the drive's events (steps, turning points: gap-weighted blocks); creep with a resonance: each alone
@@ -346,9 +343,6 @@ def diagnose_record(rec: LoopRecord, *, baseline: str = "preisach", candidates=N
                      "relay_levels": d.n_levels if front.kind == "preisach" else None,
                      "relay_smoothing": d.smoothing if front.kind == "preisach" else None,
                      "bouc_wen_shape": d.bouc_wen_shape.as_dict() if front.kind == "bouc_wen" else None,
-                     "play_envelopes": {"rising_legendre_2_up": d.play_envelopes[:ENVELOPE_TERMS].tolist(),
-                                        "bend_legendre_0_up": d.play_envelopes[ENVELOPE_TERMS:].tolist()}
-                     if front.kind == "generalised_play" else None,
                      "sharp_grid": None if front.kind != "sharp" else
                      {**{k: v for k, v in d.sharp_grid.items() if k not in ("levels", "tied")},
                       "levels_V": d.sharp_grid["levels"].tolist(),

@@ -14,8 +14,7 @@ the Bouc–Wen law (``kind="bouc_wen"``, :mod:`.bouc_wen`: Duhem class, no retur
 which no relay density fits) or fine play operators
 (``kind="play"``, :func:`fine_play_features`: a Prandtl–Ishlinskii model with a cubic, the paper's
 class; a Preisach model whose density lies on lines, whose operator kinks the grid can only place
-at its cell edges), generalised play operators (``kind="generalised_play"``, :mod:`.generalised_play`:
-their rising and falling envelopes fitted, a Preisach density on curves) or, where the training part shows a comb of jumps on a regular grid, ideal
+at its cell edges) or, where the training part shows a comb of jumps on a regular grid, ideal
 relays on that grid (``kind="sharp"``, :mod:`.sharp_grid`: a discrete Preisach stage), each with a linear drift, the cross axis' motion and a bank of the drive's
 relaxations as free nuisance columns (:attr:`Design.nuisance`); with effects, the Bouc–Wen law's
 shape is then refitted jointly with them (:func:`fit_model`). Held-out samples are scored inside
@@ -92,7 +91,6 @@ from scipy.signal import cont2discrete, lfilter_zi
 from ..engine import decorrelation_length, noise_floor, sigma_from_second_differences
 from ...hysteresis import play
 from .bouc_wen import backbone_columns, bouc_wen_columns, fit_bouc_wen_shape
-from .generalised_play import N_ENVELOPE_PARAMETERS, RADII, fit_envelopes, generalised_play_columns
 from .nnls import nnls_gram
 from .record import block_means
 from .sharp_grid import (DENSITY_LEVELS, FINE_SWEEPS, FREE_LEVELS, density_map, density_size, find_grid, grid_levels,
@@ -152,7 +150,7 @@ SEARCH_LEVELS = 16
 QUIET_SHARE = 0.1
 QUIET_MIN = 100
 #: Hysteresis families of the rate-independent baseline (:meth:`Design.choose_family`).
-FAMILIES = ("preisach", "bouc_wen", "play", "generalised_play", "sharp")
+FAMILIES = ("preisach", "bouc_wen", "play", "sharp")
 #: Prior weight of the ``"sharp"`` family's relay density (:mod:`.sharp_grid`): the weaker of
 #: :data:`SMOOTHING_CHOICES` (a coarse grid's density changes by a large share from level to level).
 SHARP_SMOOTHING = 1e-5
@@ -183,16 +181,6 @@ PLAY_KEEP_SHARE = 1e-3
 N_PLAY_FREE = 2
 #: Nelder–Mead evaluations of the Bouc–Wen shape refitted jointly with the effects (:func:`fit_model`).
 JOINT_SHAPE_EVALUATIONS = 400
-#: Parameters each envelope coefficient of the ``"generalised_play"`` family counts for in the family
-#: choice's GCV (:meth:`Design.choose_family`): a coefficient found by a nonlinear search takes more
-#: from the data than a linear weight — the cost of 2–4 (3 recommended) per knot in the GCV of
-#: Friedman's adaptive regression splines (Ann. Stat. 19 (1991) 1). Counted as 1, the family won the
-#: choice by under 0.2 % of √GCV on two spent records where an unmodelled creep and resonance
-#: dominated every family's fit (61002 cases 12 and 17: noise and steps), and its fixed envelopes
-#: then left the effects' fit 4.0× and 27× the noise on the training part where the grid's leaves
-#: 2.5× and 2.9×; where it fits a generalised-PI stage better it wins by 18–43 % (√GCV ratios
-#: 0.57–0.82 on the spent records of 61001–62001 it was taken for).
-ENVELOPE_DF = 3
 N_PLAY = 12
 #: Tikhonov weight (relative to the sample count, on unit-RMS columns) on non-negative weights that
 #: have no smoothness prior (play operators, creep bank).
@@ -595,7 +583,7 @@ def creep_gamma_from_bank(c, taus, t1, t2) -> float:
 @dataclass(frozen=True)
 class ModelSpec:
     """What :func:`fit_model` fits: the hysteresis family ``kind`` ("preisach" | "bouc_wen" | "play" |
-    "generalised_play" | "sharp" | "symmetric") and the candidate ``effects``; ``slip_at_s``, where given, adds a step of
+    "sharp" | "symmetric") and the candidate ``effects``; ``slip_at_s``, where given, adds a step of
     free height at that instant (s) — a mechanical slip, a competitor outside the candidate set
     (:func:`.alike.slip_instant`), counted as two parameters (height and instant)."""
     kind: str = "preisach"
@@ -710,7 +698,6 @@ class Design:
         self.choice_scores: dict = {}
         self.state_tolerance: float | None = None  # set by scored()
         self.bouc_wen_shape = None
-        self.play_envelopes = None
         self.n_levels = int(n_levels) if n_levels is not None else N_LEVELS
         self.smoothing = self.choose_smoothing() if n_levels is None else SMOOTHING
         if family is not None and family not in FAMILIES:
@@ -919,9 +906,7 @@ class Design:
     def choose_family(self) -> str:
         """Hysteresis family of the baseline — the relay grid (``"preisach"``), the Bouc–Wen law
         (``"bouc_wen"``, :mod:`.bouc_wen`), fine play operators (``"play"``,
-        :func:`fine_play_features`), generalised play operators on fitted envelopes
-        (``"generalised_play"``, :mod:`.generalised_play`; its df counts the envelopes'
-        coefficients too) or, where the training part shows a grid of jumps, ideal relays
+        :func:`fine_play_features`) or, where the training part shows a grid of jumps, ideal relays
         on it (``"sharp"``, :attr:`sharp_grid`; its df counts the placed thresholds too) — by generalised cross-validation on the whole training part:
         each family is fitted there (with the :attr:`nuisance` columns free) and scored by
         ``GCV = m·RSS / (m − df)²`` (m training samples; df the fit's effective parameter count,
@@ -952,12 +937,6 @@ class Design:
         cols, plays = np.hstack([free, play_cols[:, :N_PLAY_FREE]]), play_cols[:, N_PLAY_FREE:]
         wf, wp, df = solve_weights(cols, plays, self.x, self.train, with_df=True)
         scores["play"] = (float(np.sum((cols @ wf + plays @ wp - self.x)[self.train] ** 2)), df)
-        general = self.hyst("generalised_play")
-        cols, plays = np.hstack([free, general[:, :N_PLAY_FREE]]), general[:, N_PLAY_FREE:]
-        wf, wp, df = solve_weights(cols, plays, self.x, self.train, with_df=True)
-        # each envelope coefficient, searched by a nonlinear fit, counts as ENVELOPE_DF parameters
-        scores["generalised_play"] = (float(np.sum((cols @ wf + plays @ wp - self.x)[self.train] ** 2)),
-                                      df + ENVELOPE_DF * N_ENVELOPE_PARAMETERS)
         # offered only where the record shows a grid of jumps, and placed only where its start fits
         # the training part better than every other family (:attr:`sharp_grid`)
         self._sharp_bar = min(rss for rss, _ in scores.values())
@@ -975,7 +954,7 @@ class Design:
             self.choice_scores[f"gcv_{family}"] = float(np.sqrt(score[family]))
             self.choice_scores[f"df_{family}"] = float(df)
         # listed smallest model first: ties go to it
-        return min((f for f in ("bouc_wen", "play", "generalised_play", "preisach", "sharp") if f in score), key=score.get)
+        return min((f for f in ("bouc_wen", "play", "preisach", "sharp") if f in score), key=score.get)
 
     @cached_property
     def sharp_grid(self) -> dict | None:
@@ -1118,10 +1097,7 @@ class Design:
         :func:`fine_play_features`; the first :data:`N_PLAY_FREE` columns are free), or the backbone
         u'², u'³ and the state h of the Bouc–Wen law whose shape is fitted on the training part
         (``"bouc_wen"``; the shape is kept in ``bouc_wen_shape``), or u'², u'³ (free) and ideal relays
-        on the grid found in the record (``"sharp"``, :attr:`sharp_grid`), or u², u³ (free) and
-        generalised plays on :data:`.generalised_play.RADII` half-widths between envelopes fitted on
-        the training part with the :attr:`nuisance` columns free (``"generalised_play"``; the
-        coefficients are kept in ``play_envelopes``)."""
+        on the grid found in the record (``"sharp"``, :attr:`sharp_grid`)."""
         if kind not in self._hyst:
             if kind == "preisach":
                 self._hyst[kind] = self.relays(self.n_levels)
@@ -1137,14 +1113,6 @@ class Design:
             elif kind == "play":
                 poly, plays = fine_play_features(self.vc, self.v_lo, self.v_hi, block=self.block)
                 self._hyst[kind] = np.hstack([poly, self.polarity * self.refined_plays(poly, plays)])
-            elif kind == "generalised_play":
-                u = np.clip((self.vc - self.v_lo) / (self.v_hi - self.v_lo), 0.0, 1.0)
-                poly = block_means(np.column_stack([u**2, u**3]), self.block)
-                free = np.hstack([self.free, self.nuisance, poly])
-                self.play_envelopes = fit_envelopes(u, self.block, free, self.x, self.train, self.polarity,
-                                                    lambda f, p: solve_weights(f, p, self.x, self.train))
-                plays = generalised_play_columns(u, self.play_envelopes, RADII, self.block)
-                self._hyst[kind] = np.hstack([poly, self.polarity * plays])
             else:
                 self._hyst[kind] = self.polarity * play_features(self.vc, self.v_lo, self.v_hi, block=self.block)
         return self._hyst[kind]
@@ -1382,7 +1350,7 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
     # free offset + linear, then the non-negative hysteresis weights (relays, plays); the Bouc–Wen
     # backbone and state weights are free (their signs are the law's, not a density's)
     hyst_cols = np.hstack([d.free, hf])
-    n_free_h = d.free.shape[1] + (hf.shape[1] if kind == "bouc_wen" else N_PLAY_FREE if kind in ("play", "generalised_play", "sharp") else 0)
+    n_free_h = d.free.shape[1] + (hf.shape[1] if kind == "bouc_wen" else N_PLAY_FREE if kind in ("play", "sharp") else 0)
     extra = []
     names = []
     if "drift" in eff:
@@ -1409,7 +1377,6 @@ def _fit_columns(d: Design, spec: ModelSpec, hf: np.ndarray):
     # + β, γ, n; + the placed thresholds
     n_params = hyst_cols.shape[1] + extra.shape[1] + (3 if kind == "bouc_wen" else 0) + \
         (d.sharp_grid["levels"].size if kind == "sharp" else 0) + \
-        (N_ENVELOPE_PARAMETERS if kind == "generalised_play" else 0) + \
         (1 if spec.slip_at_s is not None else 0)  # a slip's instant (its height is a column)
 
     fitted = _LagFits(d, hyst_cols, smooth, n_free_h, extra, creep="creep" in eff)
